@@ -1,0 +1,171 @@
+"""Write collected episodes into a LeRobot v3.0 dataset, all or nothing.
+
+Layout and metadata are lerobot's own: ``LeRobotDatasetMetadata`` creates ``meta/info.json``
+and keeps ``meta/episodes``, ``meta/tasks.parquet`` and ``meta/stats.json`` (episode stats from
+lerobot's ``compute_episode_stats``). Only the frame rows are written here, straight to
+``data/chunk-XXX/file-YYY.parquet`` with pyarrow in the schema lerobot derives from the
+features. Reason: ``LeRobotDataset.save_episode`` runs a per-row ``datasets.map`` to embed
+images, about 1 ms per frame even with no image, which cost more than simulating the frame.
+``tests/test_dataset.py`` checks that ``LeRobotDataset`` loads the result identically to a
+dataset written through ``add_frame`` / ``save_episode``.
+
+Everything is written into a hidden directory beside the destination and renamed into place
+by ``commit``: an interrupted or failed collection never leaves a half-written dataset.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from acn.datasets import schema
+from acn.toolkit.collector import Episode, Trace
+
+os.environ.setdefault("HF_HUB_OFFLINE", "1")
+
+
+def episode_columns(ep: Episode, paired: bool) -> dict[str, np.ndarray]:
+    """The per-frame feature columns of one episode (no index columns)."""
+    cols: dict[str, np.ndarray] = {}
+
+    def put(tr: Trace, prefix: str) -> None:
+        cols[prefix + schema.STATE] = tr.state.astype(np.float32)
+        cols[prefix + schema.ACTION] = tr.action.astype(np.float32)
+        cols[prefix + schema.EFFORT] = tr.effort.astype(np.float32)
+        cols[prefix + schema.NEXT_STATE] = tr.next_state.astype(np.float32)
+        cols[prefix + schema.NEXT_FALLEN] = tr.fallen.astype(bool)
+
+    put(ep.source, "")
+    if paired:
+        put(ep.target, schema.TARGET_PREFIX)
+    done = np.zeros(len(ep), dtype=bool)
+    done[-1] = True
+    cols[schema.DONE] = done
+    return cols
+
+
+def _arrow_column(values: np.ndarray, typ: pa.DataType) -> pa.Array:
+    if pa.types.is_fixed_size_list(typ):
+        flat = pa.array(np.ascontiguousarray(values).reshape(-1), type=typ.value_type)
+        return pa.FixedSizeListArray.from_arrays(flat, typ.list_size)
+    return pa.array(values, type=typ)
+
+
+class DatasetWriter:
+    """Writes ``Episode`` objects into a new dataset at ``root`` (see module docstring)."""
+
+    def __init__(self, root: str | Path, fps: int, paired: bool, task: str, acn_meta: dict,
+                 overwrite: bool = False) -> None:
+        from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+        from lerobot.datasets.utils import get_hf_features_from_features
+
+        self.root = Path(root).absolute()
+        if self.root.exists() and not overwrite:
+            raise FileExistsError(f"output directory {self.root} exists (use --overwrite to replace it)")
+        self.root.parent.mkdir(parents=True, exist_ok=True)
+        self._tmp = self.root.parent / f".{self.root.name}.partial-{os.getpid()}"
+        shutil.rmtree(self._tmp, ignore_errors=True)
+        self.paired, self.task = paired, task
+        self.meta = LeRobotDatasetMetadata.create(
+            repo_id=f"acn/{self.root.name}", fps=fps, features=schema.features(paired),
+            robot_type=schema.ROBOT_TYPE, root=self._tmp, use_videos=False,
+        )
+        self._acn = {**acn_meta, "episodes": []}
+        self.meta.info[schema.ACN_KEY] = self._acn
+        self._arrow_schema = get_hf_features_from_features(self.meta.features).arrow_schema
+        self._writer: pq.ParquetWriter | None = None
+        self._file = (0, 0)  # (chunk, file) being written
+        self._file_frames = 0
+        self.num_episodes = 0
+        self.num_frames = 0
+
+    def write(self, ep: Episode) -> None:
+        """Append one episode; an episode with no frame is only listed in the metadata."""
+        from lerobot.datasets.compute_stats import compute_episode_stats
+
+        n = len(ep)
+        if n == 0:
+            self._acn.setdefault("empty_episodes", []).append({"collection_index": ep.index, "end": ep.end})
+            return
+        self.meta.save_episode_tasks([self.task])
+        cols = episode_columns(ep, self.paired)
+        cols.update({
+            "timestamp": ep.timestamp.astype(np.float32),
+            "frame_index": np.arange(n, dtype=np.int64),
+            "episode_index": np.full(n, self.num_episodes, dtype=np.int64),
+            "index": np.arange(self.num_frames, self.num_frames + n, dtype=np.int64),
+            "task_index": np.full(n, self.meta.get_task_index(self.task), dtype=np.int64),
+        })
+        location = self._write_rows(cols, n)
+        with warnings.catch_warnings():  # lerobot warns that it casts bool flags to uint8 for histograms
+            warnings.simplefilter("ignore", RuntimeWarning)
+            stats = compute_episode_stats(cols, self.meta.features)
+        self.meta.save_episode(self.num_episodes, n, [self.task], stats, location)
+        self._acn["episodes"].append({"episode_index": self.num_episodes, "length": n, "end": ep.end,
+                                      "collection_index": ep.index})
+        self.num_episodes += 1
+        self.num_frames += n
+
+    def _write_rows(self, cols: dict[str, np.ndarray], n: int) -> dict:
+        from lerobot.datasets.utils import update_chunk_file_indices
+
+        table = pa.Table.from_arrays(
+            [_arrow_column(cols[f.name], f.type) for f in self._arrow_schema], schema=self._arrow_schema)
+        if self._writer is not None:
+            size_mb = self._writer_bytes() / 2**20
+            if size_mb + size_mb / max(self._file_frames, 1) * n >= self.meta.data_files_size_in_mb:
+                self._writer.close()
+                self._writer = None
+                self._file = update_chunk_file_indices(*self._file, self.meta.chunks_size)
+                self._file_frames = 0
+        if self._writer is None:
+            path = self._tmp / self.meta.data_path.format(chunk_index=self._file[0], file_index=self._file[1])
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self._writer = pq.ParquetWriter(path, schema=self._arrow_schema, compression="snappy",
+                                            use_dictionary=True)
+            self._path = path
+        self._writer.write_table(table)
+        self._file_frames += n
+        return {"data/chunk_index": self._file[0], "data/file_index": self._file[1],
+                "dataset_from_index": self.num_frames, "dataset_to_index": self.num_frames + n}
+
+    def _writer_bytes(self) -> int:
+        return self._path.stat().st_size if self._path.exists() else 0
+
+    def commit(self) -> Path:
+        """Close the files and move the dataset into place; returns its path."""
+        from lerobot.datasets.utils import write_info
+
+        if self.num_episodes == 0:
+            self.abort()
+            raise RuntimeError("no episode has any frame: nothing to write")
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+        self.meta._close_writer()  # flushes the buffered episode metadata
+        write_info(self.meta.info, self._tmp)
+        old = None
+        if self.root.exists():
+            old = self.root.parent / f".{self.root.name}.old-{os.getpid()}"
+            self.root.rename(old)
+        self._tmp.rename(self.root)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+        return self.root
+
+    def abort(self) -> None:
+        """Discard everything written so far."""
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+        try:
+            self.meta._close_writer()
+        except Exception:  # noqa: BLE001 - best effort before deleting
+            pass
+        shutil.rmtree(self._tmp, ignore_errors=True)

@@ -1,0 +1,211 @@
+"""One interface for a simulated A1; PyBullet and MuJoCo implement the few parts that differ.
+
+A backend owns one simulator instance (no global simulator state). The shared part here
+turns raw simulator readings into the documented state vector (``acn.toolkit.state``),
+computes the IMU, validates actions and detects blow-ups. Each backend implements only:
+
+- ``_build()``            build the model from ``SimConfig`` (parameters set at build time),
+- ``_restore_initial()``  bring the simulator back to the state right after building,
+- ``_read_dynamics()``    trunk-origin pose and velocities in the world frame, joints,
+- ``_write_dynamics()``   the inverse,
+- ``_read_contacts()``    which feet touch the ground,
+- ``_advance(action)``    run ``substeps`` physics steps under the action, return the mean
+                          applied joint torque over them.
+
+Control law (identical in both backends). ``position`` mode: at every physics step
+``tau = clip(kp * (q_target - q) - kd * qdot, -limit, limit)``. ``torque`` mode: the action is
+a joint torque, clipped to the same limit and held over the control step.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import ClassVar, Literal
+
+import numpy as np
+
+from acn.toolkit.robot import GRAVITY, STANCE, STANDING_HEIGHT, ModelParams
+from acn.toolkit.rotations import quat_to_matrix, quat_to_rpy, rpy_to_quat
+from acn.toolkit.state import ACTION_DIM, FOOT_NAMES, NUM_JOINTS, SLICES, STATE_DIM
+
+ActionMode = Literal["position", "torque"]
+ACTION_MODES: tuple[str, ...] = ("position", "torque")
+
+
+class SimulationDiverged(RuntimeError):
+    """The simulator produced a non-finite or physically absurd state."""
+
+
+@dataclass
+class SimConfig:
+    """How a simulated A1 is built and driven. Both backends read the same config."""
+
+    physics_dt: float = 0.001     # s, one physics step (1 kHz)
+    substeps: int = 20            # physics steps per control step (50 Hz control)
+    action_mode: ActionMode = "position"
+    kp: float = 60.0              # N m/rad, position-mode PD stiffness
+    kd: float = 1.5               # N m s/rad, position-mode PD damping
+    torque_limit: float = 33.5    # N m, applied to every joint in both modes
+    params: ModelParams = field(default_factory=ModelParams)
+
+    @property
+    def control_dt(self) -> float:
+        return self.physics_dt * self.substeps
+
+    def validate(self) -> None:
+        if self.action_mode not in ACTION_MODES:
+            raise ValueError(f"action mode must be one of {ACTION_MODES}, got {self.action_mode!r}")
+        if not (0 < self.physics_dt <= 0.01):
+            raise ValueError(f"physics_dt must be in (0, 0.01] s, got {self.physics_dt}")
+        if self.substeps < 1:
+            raise ValueError(f"substeps must be >= 1, got {self.substeps}")
+        if self.kp < 0 or self.kd < 0 or self.torque_limit <= 0:
+            raise ValueError("kp and kd must be >= 0 and torque_limit > 0")
+
+
+def pd_torque(target: np.ndarray, q: np.ndarray, qd: np.ndarray, cfg: SimConfig) -> np.ndarray:
+    """The position-mode control law, N m (see module docstring)."""
+    return np.clip(cfg.kp * (target - q) - cfg.kd * qd, -cfg.torque_limit, cfg.torque_limit)
+
+
+# A state is "absurd" (the simulator blew up) beyond these bounds.
+MAX_ABS_LINVEL = 50.0      # m/s
+MAX_ABS_JOINT_VEL = 500.0  # rad/s
+MAX_ABS_POSITION = 1e3     # m
+
+
+def default_state(base_xy: tuple[float, float] = (0.0, 0.0), yaw: float = 0.0) -> np.ndarray:
+    """Standing still in the stance, feet on the ground, state-vector layout."""
+    s = np.zeros(STATE_DIM)
+    s[SLICES["base_pos"]] = (base_xy[0], base_xy[1], STANDING_HEIGHT)
+    s[SLICES["base_rpy"]] = (0.0, 0.0, yaw)
+    s[SLICES["joint_pos"]] = STANCE
+    s[SLICES["contact"]] = 1.0
+    s[SLICES["imu_acc"]] = (0.0, 0.0, GRAVITY)
+    return s
+
+
+class Backend(ABC):
+    """A simulated A1. ``reset`` / ``get_state`` / ``set_state`` / ``step``; see module doc."""
+
+    name: ClassVar[str]
+
+    def __init__(self, config: SimConfig | None = None) -> None:
+        self.config = config or SimConfig()
+        self.config.validate()
+        self._build()
+        self._linvel_world = np.zeros(3)
+        self._contact = np.zeros(len(FOOT_NAMES))
+        self._imu_acc = np.array([0.0, 0.0, GRAVITY])
+
+    # ----- public interface -------------------------------------------------------------
+    @property
+    def version(self) -> str:
+        """Installed version of the simulator package."""
+        from acn.toolkit.backends import simulator_version
+
+        return simulator_version(self.name)
+
+    def reset(self, state: np.ndarray | None = None) -> np.ndarray:
+        """Restore the freshly built simulator, then set ``state`` (default: standing)."""
+        self._restore_initial()
+        self.set_state(default_state() if state is None else state)
+        return self.get_state()
+
+    def get_state(self) -> np.ndarray:
+        """The current state vector (layout and frames: ``acn.toolkit.state``)."""
+        pos, quat, v_world, w_world, q, qd = self._read_dynamics()
+        rot = quat_to_matrix(quat)
+        s = np.empty(STATE_DIM)
+        s[SLICES["base_pos"]] = pos
+        s[SLICES["base_rpy"]] = quat_to_rpy(quat)
+        s[SLICES["joint_pos"]] = q
+        s[SLICES["base_linvel"]] = rot.T @ v_world
+        s[SLICES["base_angvel"]] = rot.T @ w_world
+        s[SLICES["joint_vel"]] = qd
+        s[SLICES["contact"]] = self._contact
+        s[SLICES["imu_acc"]] = self._imu_acc
+        return s
+
+    def set_state(self, state: np.ndarray) -> None:
+        """Write the dynamic channels into the simulator; keep the sensor channels as readings."""
+        s = np.asarray(state, dtype=np.float64)
+        if s.shape != (STATE_DIM,) or not np.all(np.isfinite(s)):
+            raise ValueError(f"state must be a finite vector of shape ({STATE_DIM},)")
+        quat = rpy_to_quat(s[SLICES["base_rpy"]])
+        rot = quat_to_matrix(quat)
+        v_world = rot @ s[SLICES["base_linvel"]]
+        self._write_dynamics(
+            s[SLICES["base_pos"]], quat, v_world, rot @ s[SLICES["base_angvel"]],
+            s[SLICES["joint_pos"]], s[SLICES["joint_vel"]],
+        )
+        self._linvel_world = v_world
+        self._contact = s[SLICES["contact"]].copy()
+        self._imu_acc = s[SLICES["imu_acc"]].copy()
+
+    def step(self, action: np.ndarray) -> np.ndarray:
+        """Advance one control step under ``action`` (12,); return mean applied torque (12,), N m.
+
+        Raises ``SimulationDiverged`` if the simulator produced an absurd state.
+        """
+        a = np.asarray(action, dtype=np.float64)
+        if a.shape != (ACTION_DIM,) or not np.all(np.isfinite(a)):
+            raise ValueError(f"action must be a finite vector of shape ({ACTION_DIM},)")
+        tau = self._advance(a)
+        pos, quat, v_world, w_world, q, qd = self._read_dynamics()
+        self._check_sane(pos, v_world, w_world, q, qd)
+        acc_world = (v_world - self._linvel_world) / self.config.control_dt + np.array([0.0, 0.0, GRAVITY])
+        self._imu_acc = quat_to_matrix(quat).T @ acc_world
+        self._linvel_world = v_world
+        self._contact = self._read_contacts()
+        return tau
+
+    def close(self) -> None:
+        """Release the simulator (safe to call twice)."""
+
+    def __enter__(self) -> "Backend":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ----- shared helpers ---------------------------------------------------------------
+    def _clip_torque(self, tau: np.ndarray) -> np.ndarray:
+        lim = self.config.torque_limit
+        return np.clip(tau, -lim, lim)
+
+    @staticmethod
+    def _check_sane(pos, v_world, w_world, q, qd) -> None:
+        allv = np.concatenate([pos, v_world, w_world, q, qd])
+        if not np.all(np.isfinite(allv)):
+            raise SimulationDiverged("non-finite state")
+        if (np.abs(pos).max() > MAX_ABS_POSITION or np.abs(v_world).max() > MAX_ABS_LINVEL
+                or np.abs(qd).max() > MAX_ABS_JOINT_VEL):
+            raise SimulationDiverged("absurd state (position, speed or joint velocity out of bounds)")
+
+    # ----- what each simulator implements ----------------------------------------------
+    @abstractmethod
+    def _build(self) -> None: ...
+
+    @abstractmethod
+    def _restore_initial(self) -> None: ...
+
+    @abstractmethod
+    def _read_dynamics(self) -> tuple[np.ndarray, ...]:
+        """(trunk origin pos (3) world, quat xyzw (4), lin vel (3) world, ang vel (3) world,
+        joint pos (12), joint vel (12)), all float64 in ``JOINT_NAMES`` order."""
+
+    @abstractmethod
+    def _write_dynamics(self, pos, quat, v_world, w_world, q, qd) -> None: ...
+
+    @abstractmethod
+    def _read_contacts(self) -> np.ndarray:
+        """(4,) 0/1 per foot in ``FOOT_NAMES`` order."""
+
+    @abstractmethod
+    def _advance(self, action: np.ndarray) -> np.ndarray: ...
+
+
+__all__ = ["Backend", "SimConfig", "SimulationDiverged", "pd_torque", "default_state",
+           "ACTION_MODES", "NUM_JOINTS"]
