@@ -1,9 +1,10 @@
 """Run a collection and write it as one dataset: ``record(config, out)``.
 
-Episodes are split into small blocks; each block is a call of the pure function
-``collect_episodes(config, indices)`` (in this process for one worker, in a process pool
-otherwise; the same call could be sent to Ray). The writer consumes blocks in episode order,
-so the dataset does not depend on the number of workers.
+Simulation runs in ``workers`` child processes, each building its simulators once and
+streaming finished episodes back; the parent only writes, in episode order, so the dataset
+does not depend on the number of workers and writing overlaps simulation. Each child runs
+``PairedRollout.episode`` over its share of indices; ``collect_episodes(config, indices)`` is
+the same work as one pure call, for a distributed engine (Ray) to run instead.
 
 Ctrl-C or SIGTERM stops the collection: the finished episodes are committed as a valid
 dataset (or nothing is written if none finished) and ``Interrupted`` is raised.
@@ -11,20 +12,22 @@ dataset (or nothing is written if none finished) and ``Interrupted`` is raised.
 
 from __future__ import annotations
 
-import math
 import multiprocessing as mp
 import signal
-import sys
 from dataclasses import asdict
-from functools import partial
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator
 
 from acn.datasets import schema
 from acn.datasets.writer import DatasetWriter
 from acn.toolkit.backends import simulator_version
-from acn.toolkit.collector import FALL_RULE, CollectConfig, Episode, PairedRollout, collect_episodes
+from acn.toolkit.collector import FALL_RULE, CollectConfig, Episode, PairedRollout
 from acn.toolkit.state import ACTION_NAMES, STATE_NAMES
+
+# Children are forked from a clean server process that has imported the simulators once.
+_CTX = mp.get_context("forkserver")
+_CTX.set_forkserver_preload(["acn.toolkit.collector", "acn.toolkit.backends.pybullet_backend",
+                             "acn.toolkit.backends.mujoco_backend"])
 
 
 class Interrupted(Exception):
@@ -54,13 +57,32 @@ def collection_metadata(cfg: CollectConfig) -> dict:
     }
 
 
-def _blocks(n: int, workers: int) -> list[list[int]]:
-    size = max(1, math.ceil(n / (workers * 4))) if workers > 1 else n
-    return [list(range(i, min(i + size, n))) for i in range(0, n, size)]
-
-
-def _worker_init() -> None:
+def _simulate(cfg: CollectConfig, indices: list[int], results) -> None:
+    """Child process: run ``indices`` with one set of simulators, send each episode back."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides what an interrupt does
+    try:
+        rollout = PairedRollout(cfg)
+        for i in indices:
+            results.put(rollout.episode(i))
+        rollout.close()
+    except Exception as e:  # noqa: BLE001 - reported to the parent, which raises it
+        results.put(e)
+
+
+def _episodes_in_order(cfg: CollectConfig, workers: int, procs: list) -> Iterator[Episode]:
+    results = _CTX.Queue()
+    for w in range(workers):
+        p = _CTX.Process(target=_simulate, args=(cfg, list(range(w, cfg.episodes, workers)), results), daemon=True)
+        p.start()
+        procs.append(p)
+    pending: dict[int, Episode] = {}
+    for next_index in range(cfg.episodes):
+        while next_index not in pending:
+            item = results.get()
+            if isinstance(item, Exception):
+                raise item
+            pending[item.index] = item
+        yield pending.pop(next_index)
 
 
 def _raise_interrupt(signum, frame):
@@ -73,43 +95,40 @@ def record(cfg: CollectConfig, out: str | Path, workers: int = 1, overwrite: boo
     cfg.validate()
     if workers < 1:
         raise ValueError(f"--workers must be >= 1, got {workers}")
+    workers = min(workers, cfg.episodes)
     task = f"{cfg.policy} ({cfg.source}" + (f" -> {cfg.target})" if cfg.target else ")")
     writer = DatasetWriter(out, fps=int(round(1.0 / cfg.sim.control_dt)), paired=cfg.paired, task=task,
                            acn_meta=collection_metadata(cfg), overwrite=overwrite)
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
-    pool = None
+    procs: list = []
     try:
-        if workers == 1:
-            rollout = PairedRollout(cfg)
-            results = ([rollout.episode(i)] for i in range(cfg.episodes))
-        else:
-            ctx = mp.get_context("spawn")
-            pool = ctx.Pool(min(workers, cfg.episodes), initializer=_worker_init)
-            results = pool.imap(partial(collect_episodes, cfg), _blocks(cfg.episodes, workers))
-        for block in results:
-            for ep in block:
-                writer.write(ep)
-                if on_episode:
-                    on_episode(ep)
-        if workers == 1:
-            rollout.close()
+        for ep in _episodes_in_order(cfg, workers, procs):
+            writer.write(ep)
+            if on_episode:
+                on_episode(ep)
     except KeyboardInterrupt:
-        if pool is not None:
-            pool.terminate()
+        _stop(procs)
         path = _commit_quietly(writer) if writer.num_episodes else None
         if path is None:
             writer.abort()
         raise Interrupted(path, writer.num_episodes) from None
     except BaseException:
-        if pool is not None:
-            pool.terminate()
+        _stop(procs)
         writer.abort()
         raise
     finally:
-        if pool is not None:
-            pool.close()
         signal.signal(signal.SIGTERM, previous)
+    for p in procs:
+        p.join()
     return _commit_quietly(writer)
+
+
+def _stop(procs: list) -> None:
+    for p in procs:
+        if p.is_alive():
+            p.terminate()
+    for p in procs:
+        p.join()
 
 
 def _commit_quietly(writer: DatasetWriter) -> Path:
@@ -122,6 +141,3 @@ def _commit_quietly(writer: DatasetWriter) -> Path:
         signal.signal(signal.SIGINT, old_int)
         signal.signal(signal.SIGTERM, old_term)
 
-
-if sys.platform == "win32":  # pragma: no cover
-    raise ImportError("acn.datasets.record needs POSIX signals")

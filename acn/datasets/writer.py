@@ -25,6 +25,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from acn.datasets import schema
+from acn.errors import UserError
 from acn.toolkit.collector import Episode, Trace
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
@@ -96,7 +97,7 @@ class DatasetWriter:
         self.meta.save_episode_tasks([self.task])
         cols = episode_columns(ep, self.paired)
         cols.update({
-            "timestamp": ep.timestamp.astype(np.float32),
+            "timestamp": (np.arange(n) / self.meta.fps).astype(np.float32),  # as lerobot's add_frame
             "frame_index": np.arange(n, dtype=np.int64),
             "episode_index": np.full(n, self.num_episodes, dtype=np.int64),
             "index": np.arange(self.num_frames, self.num_frames + n, dtype=np.int64),
@@ -144,7 +145,7 @@ class DatasetWriter:
 
         if self.num_episodes == 0:
             self.abort()
-            raise RuntimeError("no episode has any frame: nothing to write")
+            raise UserError("every episode ended before its first step (the simulator blew up): nothing written")
         if self._writer is not None:
             self._writer.close()
             self._writer = None

@@ -105,7 +105,7 @@ class Excite:
 class RandomTargets:
     """Uniform random joint targets around the stance, redrawn every ``hold`` seconds."""
 
-    amplitude: float = 0.3  # rad
+    amplitude: float = 0.2  # rad
     hold: float = 0.1       # s
     name: str = "random"
 

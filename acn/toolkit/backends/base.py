@@ -98,6 +98,7 @@ class Backend(ABC):
         self._linvel_world = np.zeros(3)
         self._contact = np.zeros(len(FOOT_NAMES))
         self._imu_acc = np.array([0.0, 0.0, GRAVITY])
+        self._state: np.ndarray | None = None  # cached state vector, valid until the simulator moves
 
     # ----- public interface -------------------------------------------------------------
     @property
@@ -115,7 +116,11 @@ class Backend(ABC):
 
     def get_state(self) -> np.ndarray:
         """The current state vector (layout and frames: ``acn.toolkit.state``)."""
-        pos, quat, v_world, w_world, q, qd = self._read_dynamics()
+        if self._state is None:
+            self._state = self._compose_state(*self._read_dynamics())
+        return self._state.copy()
+
+    def _compose_state(self, pos, quat, v_world, w_world, q, qd) -> np.ndarray:
         rot = quat_to_matrix(quat)
         s = np.empty(STATE_DIM)
         s[SLICES["base_pos"]] = pos
@@ -143,6 +148,7 @@ class Backend(ABC):
         self._linvel_world = v_world
         self._contact = s[SLICES["contact"]].copy()
         self._imu_acc = s[SLICES["imu_acc"]].copy()
+        self._state = None
 
     def step(self, action: np.ndarray) -> np.ndarray:
         """Advance one control step under ``action`` (12,); return mean applied torque (12,), N m.
@@ -152,13 +158,17 @@ class Backend(ABC):
         a = np.asarray(action, dtype=np.float64)
         if a.shape != (ACTION_DIM,) or not np.all(np.isfinite(a)):
             raise ValueError(f"action must be a finite vector of shape ({ACTION_DIM},)")
+        self._state = None
         tau = self._advance(a)
-        pos, quat, v_world, w_world, q, qd = self._read_dynamics()
+        dyn = self._read_dynamics()
+        pos, quat, v_world, w_world, q, qd = dyn
         self._check_sane(pos, v_world, w_world, q, qd)
-        acc_world = (v_world - self._linvel_world) / self.config.control_dt + np.array([0.0, 0.0, GRAVITY])
+        acc_world = (v_world - self._linvel_world) / self.config.control_dt
+        acc_world[2] += GRAVITY
         self._imu_acc = quat_to_matrix(quat).T @ acc_world
         self._linvel_world = v_world
         self._contact = self._read_contacts()
+        self._state = self._compose_state(*dyn)
         return tau
 
     def close(self) -> None:
@@ -177,8 +187,8 @@ class Backend(ABC):
 
     @staticmethod
     def _check_sane(pos, v_world, w_world, q, qd) -> None:
-        allv = np.concatenate([pos, v_world, w_world, q, qd])
-        if not np.all(np.isfinite(allv)):
+        if not (np.isfinite(pos).all() and np.isfinite(v_world).all() and np.isfinite(w_world).all()
+                and np.isfinite(q).all() and np.isfinite(qd).all()):
             raise SimulationDiverged("non-finite state")
         if (np.abs(pos).max() > MAX_ABS_POSITION or np.abs(v_world).max() > MAX_ABS_LINVEL
                 or np.abs(qd).max() > MAX_ABS_JOINT_VEL):

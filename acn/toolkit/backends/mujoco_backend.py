@@ -17,7 +17,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from acn.toolkit.backends.base import Backend, SimConfig
+from acn.toolkit.backends.base import Backend, SimConfig, SimulationDiverged
 from acn.toolkit.robot import GRAVITY, TRUNK_LINK, URDF_FOOT_LINK, URDF_JOINT, urdf_path
 from acn.toolkit.state import FOOT_NAMES, JOINT_NAMES
 
@@ -29,6 +29,8 @@ def build_spec(config: SimConfig) -> mujoco.MjSpec:
     spec.option.timestep = cfg.physics_dt
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_EULER
     spec.option.gravity = [0.0, 0.0, -GRAVITY]
+    # A blow-up must surface as a non-finite state, not as MuJoCo's silent reset to qpos0.
+    spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
 
     trunk = spec.body(TRUNK_LINK)
     trunk.add_freejoint(name="root")
@@ -76,8 +78,10 @@ class MuJoCoBackend(Backend):
         jids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, URDF_JOINT[j]) for j in JOINT_NAMES]
         self._qadr = np.array([m.jnt_qposadr[j] for j in jids])
         self._dadr = np.array([m.jnt_dofadr[j] for j in jids])
-        self._feet = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, f"{f}_foot") for f in FOOT_NAMES])
         self._floor = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "floor")
+        self._foot_of_geom = np.full(m.ngeom, -1)  # geom id -> foot index, -1 if not a foot
+        for k, f in enumerate(FOOT_NAMES):
+            self._foot_of_geom[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, f"{f}_foot")] = k
 
     def _restore_initial(self) -> None:
         mujoco.mj_resetData(self.model, self.data)
@@ -106,16 +110,21 @@ class MuJoCoBackend(Backend):
         mujoco.mj_forward(self.model, d)
 
     def _read_contacts(self) -> np.ndarray:
-        d = self.data
-        geom = d.contact.geom[: d.ncon]
-        on_floor = np.concatenate([geom[geom[:, 0] == self._floor, 1], geom[geom[:, 1] == self._floor, 0]])
-        return np.isin(self._feet, on_floor).astype(np.float64)
+        geom = self.data.contact.geom[: self.data.ncon]
+        other = np.where(geom[:, 0] == self._floor, geom[:, 1], geom[:, 0])[(geom == self._floor).any(axis=1)]
+        foot = self._foot_of_geom[other]
+        out = np.zeros(len(FOOT_NAMES))
+        out[foot[foot >= 0]] = 1.0
+        return out
 
     def _advance(self, action: np.ndarray) -> np.ndarray:
         m, d = self.model, self.data
         d.ctrl[:] = action
         total = np.zeros(12)
+        bad = d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number
         for _ in range(self.config.substeps):
             mujoco.mj_step(m, d)
-            total += d.actuator_force
+            np.add(total, d.actuator_force, out=total)
+        if d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number > bad:
+            raise SimulationDiverged("MuJoCo reported a non-finite or huge acceleration")
         return total / self.config.substeps
