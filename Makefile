@@ -16,16 +16,22 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
-# Collect a small paired PyBullet -> MuJoCo dataset with the built-in trot.
+# Collect a small paired PyBullet -> MuJoCo dataset with the built-in trot, then fit the
+# paper's ACN and the well-posed MuJoCo-Jacobian variant on it and compare them.
 demo: $(STAMP)
-	$(BIN)/acn-collect --source pybullet --target mujoco --policy trot --episodes 4 --seconds 5 \
+	$(BIN)/acn-collect --source pybullet --target mujoco --policy trot --episodes 12 --seconds 10 \
 		--seed 0 --workers 2 --out $(OUT)/trot_pb_mj --overwrite
+	$(BIN)/acn-fit $(OUT)/trot_pb_mj --variant paper --epochs 10 --out $(OUT)/acn_paper --overwrite
+	$(BIN)/acn-fit $(OUT)/trot_pb_mj --variant mujoco-jacobian --epochs 10 --out $(OUT)/acn_mujoco_jacobian --overwrite
+	@echo "dataset: $(OUT)/trot_pb_mj (LeRobotDataset('acn/trot_pb_mj', root='$(OUT)/trot_pb_mj'), HF_HUB_OFFLINE=1)"
+	@echo "correctors: $(OUT)/acn_paper, $(OUT)/acn_mujoco_jacobian (acn.models.Corrector.load(DIR)); metrics.json inside"
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/collect.py
+	$(BIN)/python benchmarks/fit.py
 
 clean:
 	rm -rf $(VENV) $(OUT)

@@ -33,34 +33,27 @@ def _run(prog: str, body: Callable[[], int | None]) -> int:
         return EXIT_INTERRUPTED
 
 
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected a number >= 1, got {v}")
-    return v
+def _number(kind: type, minimum: float, inclusive: bool) -> Callable[[str], float]:
+    """An argparse type: a finite ``kind`` (int or float) >= or > ``minimum``."""
+    word = "a whole number" if kind is int else "a number"
+    bound = f"{'>=' if inclusive else '>'} {minimum:g}"
+
+    def parse(text: str):
+        try:
+            v = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {word}, got {text!r}") from None
+        if not (v == v and abs(v) != float("inf")) or v < minimum or (v == minimum and not inclusive):
+            raise argparse.ArgumentTypeError(f"expected a finite number {bound}, got {text}")
+        return v
+
+    return parse
 
 
-def _nonneg_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {v}")
-    return v
-
-
-def _positive_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (v > 0 and v < float("inf")):
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text}")
-    return v
+_positive_int = _number(int, 1, inclusive=True)
+_nonneg_int = _number(int, 0, inclusive=True)
+_positive_float = _number(float, 0, inclusive=False)
+_nonneg_float = _number(float, 0, inclusive=True)
 
 
 # ----------------------------------------------------------------------------- acn-collect
@@ -137,6 +130,80 @@ def collect_main(argv: list[str] | None = None) -> int:
         return 0
 
     return _run("acn-collect", body)
+
+
+# ----------------------------------------------------------------------------- acn-fit
+def fit_parser() -> argparse.ArgumentParser:
+    from acn.models.acn import VARIANTS
+    from acn.models.fit import FitConfig
+
+    d = FitConfig()
+    p = _Parser(prog="acn-fit", description="Fit the Action Correction Network from paired datasets written by "
+                "acn-collect; write a frozen corrector (model.safetensors + config.json + metrics.json).")
+    p.add_argument("datasets", nargs="+", type=Path, help="paired dataset directories")
+    p.add_argument("--out", required=True, type=Path, help="model directory to create")
+    p.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
+    p.add_argument("--variant", default=d.variant, choices=VARIANTS,
+                   help="paper: learned Jacobian (the paper's, degenerate); mujoco-jacobian: J from the target")
+    p.add_argument("--epochs", type=_positive_int, default=d.epochs)
+    p.add_argument("--batch-size", type=_positive_int, default=d.batch_size)
+    p.add_argument("--lr", type=_positive_float, default=d.lr)
+    p.add_argument("--lambda-l1", type=_nonneg_float, default=d.lambda_l1, help="weight of |delta_a|_1")
+    p.add_argument("--hidden", type=_positive_int, default=d.hidden)
+    p.add_argument("--layers", type=_positive_int, default=d.layers, help="hidden layers per network")
+    p.add_argument("--filter-percentile", type=_positive_float, default=d.filter_percentile,
+                   help="keep rows whose source-target gap is below this percentile (100: keep all)")
+    p.add_argument("--val-fraction", type=_positive_float, default=d.val_fraction, help="of episodes")
+    p.add_argument("--seed", type=_nonneg_int, default=d.seed)
+    p.add_argument("--device", default=d.device, help="cpu or cuda")
+    p.add_argument("--precision", default=d.precision, choices=("auto", "bf16", "fp32"),
+                   help="matmul precision in training (auto: bf16 where the hardware has it natively)")
+    p.add_argument("--jacobian-eps", type=_positive_float, default=d.jacobian_eps,
+                   help="finite-difference step on actions (mujoco-jacobian)")
+    p.add_argument("--eval-episodes", type=_nonneg_int, default=d.eval_episodes,
+                   help="closed-loop evaluation episodes from held-out initial states (0: skip)")
+    p.add_argument("--eval-seconds", type=_positive_float, default=d.eval_seconds)
+    return p
+
+
+def fit_main(argv: list[str] | None = None) -> int:
+    args = fit_parser().parse_args(argv)
+
+    def body() -> int:
+        from acn.models.fit import FitConfig, fit, save
+
+        if args.out.exists() and not args.overwrite:
+            raise UserError(f"model directory {args.out} exists (use --overwrite to replace it)")
+        for d in args.datasets:
+            if not d.is_dir():
+                raise UserError(f"dataset directory {d} does not exist")
+        cfg = FitConfig(variant=args.variant, hidden=args.hidden, layers=args.layers, lambda_l1=args.lambda_l1,
+                        lr=args.lr, batch_size=args.batch_size, epochs=args.epochs,
+                        filter_percentile=args.filter_percentile, val_fraction=args.val_fraction, seed=args.seed,
+                        device=args.device, precision=args.precision, jacobian_eps=args.jacobian_eps, eval_episodes=args.eval_episodes,
+                        eval_seconds=args.eval_seconds)
+        model, metrics = fit(args.datasets, cfg, log=lambda line: print(line, file=sys.stderr))
+        path = save(model, metrics, args.out, overwrite=args.overwrite)
+        _print_fit_summary(metrics, path)
+        return 0
+
+    return _run("acn-fit", body)
+
+
+def _print_fit_summary(m: dict, path: Path) -> None:
+    v = m["val_objective"]
+    print(f"validation objective {v['loss']:.4f} (fit {v['fit']:.4f}; no correction {v['fit_no_correction']:.4f})")
+    if "val_objective_true_jacobian" in m:
+        t = m["val_objective_true_jacobian"]
+        print(f"validation fit under the target's true Jacobian {t['fit']:.4f} (no correction {t['fit_no_correction']:.4f})")
+    if "closed_loop" in m:
+        c = m["closed_loop"]
+        print(f"closed-loop divergence {c['divergence_uncorrected']:.4f} -> {c['divergence_corrected']:.4f}: "
+              f"divergence_reduction={c['divergence_reduction']:.3f}")
+        print(f"eps_transfer {c['eps_transfer_uncorrected']:.3f} -> {c['eps_transfer']:.3f}; "
+              f"delta_corr {c['delta_corr']:.3f}")
+    print(f"train_samples_per_s={m['train_samples_per_s']:.0f}")
+    print(f"wrote the frozen corrector to {path} (load: acn.models.Corrector.load('{path}'))")
 
 
 if __name__ == "__main__":  # pragma: no cover

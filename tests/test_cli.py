@@ -25,6 +25,7 @@ def test_help():
     (["--episodes", "0"], ">= 1"),
     (["--episodes", "two"], "whole number"),
     (["--seconds", "nan"], "finite number"),
+    (["--seconds", "inf"], "finite number"),
     (["--seconds", "-3"], "> 0"),
     (["--seed", "-1"], ">= 0"),
     (["--workers", "0"], ">= 1"),

@@ -57,6 +57,24 @@ def collection_metadata(cfg: CollectConfig) -> dict:
     }
 
 
+def config_from_metadata(acn: dict, **overrides) -> CollectConfig:
+    """The collection config a dataset was recorded with (inverse of ``collection_metadata``)."""
+    import numpy as np
+
+    from acn.toolkit.backends import SimConfig
+    from acn.toolkit.collector import InitNoise
+    from acn.toolkit.robot import ModelParams
+
+    params = ModelParams(**{k: (np.asarray(v) if isinstance(v, list) else v) for k, v in acn["model_params"].items()})
+    sim = SimConfig(physics_dt=acn["physics_dt"], substeps=acn["substeps"], action_mode=acn["action_mode"],
+                    kp=acn["kp"], kd=acn["kd"], torque_limit=acn["torque_limit"], params=params)
+    kw = dict(source=acn["source"]["simulator"], target=(acn["target"] or {}).get("simulator"), policy=acn["policy"],
+              episodes=acn["episodes_requested"], seconds=acn["seconds"], seed=acn["seed"], sim=sim,
+              init_noise=InitNoise(**acn["init_noise"]), corrector=None)
+    kw.update(overrides)
+    return CollectConfig(**kw)
+
+
 def _simulate(cfg: CollectConfig, indices: list[int], results) -> None:
     """Child process: run ``indices`` with one set of simulators, send each episode back."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides what an interrupt does

@@ -142,14 +142,15 @@ class _TraceBuffer:
 class PairedRollout:
     """Owns the simulators (and corrector) of one process and runs episodes with them."""
 
-    def __init__(self, config: CollectConfig) -> None:
+    def __init__(self, config: CollectConfig, corrector=None) -> None:
+        """``corrector``: an object with ``correct(state, action)`` (overrides ``config.corrector``)."""
         config.validate()
         self.config = config
         self.source = make_backend(config.source, config.sim)
         self.target = make_backend(config.target, config.sim) if config.target else None
         self.policy = make_policy(config.policy)
-        self.corrector = None
-        if config.corrector:
+        self.corrector = corrector
+        if corrector is None and config.corrector:
             from acn.models.corrector import Corrector
 
             self.corrector = Corrector.load(config.corrector)

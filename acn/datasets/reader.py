@@ -1,0 +1,129 @@
+"""Read collected datasets back (through ``LeRobotDataset``) as transition arrays.
+
+``load_paired(paths)`` checks that every dataset is a paired ``acn-collect`` dataset with the
+same channels, rates and action mode, concatenates them (episode ids made unique across
+files), and skips rows with non-finite values (counted in ``skipped_nonfinite``).
+
+``state_difference`` / ``transition_residual`` difference states with wrapped angles, and
+``percentile_filter`` is the paper's 70th-percentile filter as a reading option.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from acn.datasets import schema
+from acn.errors import UserError
+from acn.toolkit.state import STATE_NAMES, WRAPPED_INDEX, wrap_angle
+
+os.environ.setdefault("HF_HUB_OFFLINE", "1")
+
+# What must agree between datasets that are fitted together.
+_MUST_MATCH = ("state_names", "action_names", "physics_dt", "substeps", "action_mode", "kp", "kd", "torque_limit")
+
+
+def read_info(path: str | Path) -> dict:
+    """``meta/info.json`` of a dataset, with a clear error if it is not an acn dataset."""
+    p = Path(path) / "meta" / "info.json"
+    if not p.is_file():
+        raise UserError(f"{path} is not a LeRobot dataset (no meta/info.json)")
+    try:
+        info = json.loads(p.read_text())
+    except json.JSONDecodeError as e:
+        raise UserError(f"{p} is not valid JSON: {e}") from None
+    if schema.ACN_KEY not in info:
+        raise UserError(f"{path} was not written by acn-collect (no '{schema.ACN_KEY}' block in meta/info.json)")
+    return info
+
+
+def state_difference(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a - b for state vectors (..., STATE_DIM), angles differenced on the circle."""
+    d = a - b
+    d[..., WRAPPED_INDEX] = wrap_angle(d[..., WRAPPED_INDEX])
+    return d
+
+
+@dataclass
+class PairedTransitions:
+    """N paired transitions (float64 arrays); rows are frames of one or more datasets."""
+
+    state: np.ndarray         # (N, 43) s_t in the source
+    action: np.ndarray        # (N, 12) a_t (policy on the source state)
+    next_state: np.ndarray    # (N, 43) s_{t+1} in the source
+    target_state: np.ndarray  # (N, 43) s_t in the target
+    target_action: np.ndarray  # (N, 12) what the target received
+    target_next_state: np.ndarray  # (N, 43)
+    episode: np.ndarray       # (N,) int, unique across the datasets read
+    info: dict                # the first dataset's ``acn`` block
+    sources: list[str] = field(default_factory=list)
+    skipped_nonfinite: int = 0
+
+    def __len__(self) -> int:
+        return len(self.state)
+
+    def residual(self) -> np.ndarray:
+        """delta_s_{t+1} = (s'_src - s_src) - (s'_tgt - s_tgt), (N, 43), angles wrapped."""
+        return state_difference(state_difference(self.next_state, self.state),
+                                state_difference(self.target_next_state, self.target_state))
+
+    def gap(self, channels: np.ndarray | None = None) -> np.ndarray:
+        """||s_src - s_tgt||_2 per row over ``channels`` (default: all)."""
+        d = state_difference(self.state, self.target_state)
+        return np.linalg.norm(d if channels is None else d[:, channels], axis=1)
+
+    def subset(self, mask: np.ndarray) -> "PairedTransitions":
+        return PairedTransitions(
+            self.state[mask], self.action[mask], self.next_state[mask], self.target_state[mask],
+            self.target_action[mask], self.target_next_state[mask], self.episode[mask], self.info,
+            self.sources, self.skipped_nonfinite)
+
+
+def percentile_filter(gap: np.ndarray, percentile: float = 70.0) -> np.ndarray:
+    """The paper's filter: keep rows whose source-target gap is below its ``percentile``."""
+    if not 0 < percentile <= 100:
+        raise UserError(f"filter percentile must be in (0, 100], got {percentile}")
+    if percentile == 100:
+        return np.ones(len(gap), dtype=bool)
+    return gap < np.percentile(gap, percentile)
+
+
+def load_paired(paths: list[str | Path]) -> PairedTransitions:
+    """Read paired datasets written by ``acn-collect`` (see module docstring)."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    if not paths:
+        raise UserError("no dataset given")
+    parts, first, episode_offset, skipped = [], None, 0, 0
+    for path in paths:
+        path = Path(path)
+        info = read_info(path)
+        acn = info[schema.ACN_KEY]
+        if not acn.get("paired"):
+            raise UserError(f"{path} is not a paired dataset (recorded without --target)")
+        if acn.get("state_names") != list(STATE_NAMES):
+            raise UserError(f"{path} has different state channels than this toolkit")
+        if first is None:
+            first = acn
+        for key in _MUST_MATCH:
+            if acn.get(key) != first.get(key):
+                raise UserError(f"{path} differs from {paths[0]} in {key}: {acn.get(key)!r} vs {first.get(key)!r}")
+        try:
+            ds = LeRobotDataset(f"acn/{path.name}", root=path)
+        except Exception as e:  # noqa: BLE001 - lerobot raises many kinds on a broken dataset
+            raise UserError(f"cannot read {path} as a LeRobot dataset: {e}".splitlines()[0]) from None
+        cols = ds.hf_dataset.with_format("numpy")[:]
+        arrays = [np.asarray(cols[k], dtype=np.float64) for k in (
+            schema.STATE, schema.ACTION, schema.NEXT_STATE, schema.target_key(schema.STATE),
+            schema.target_key(schema.ACTION), schema.target_key(schema.NEXT_STATE))]
+        episode = np.asarray(cols["episode_index"], dtype=np.int64) + episode_offset
+        finite = np.all([np.isfinite(a).all(axis=1) for a in arrays], axis=0)
+        skipped += int((~finite).sum())
+        parts.append([a[finite] for a in arrays] + [episode[finite]])
+        episode_offset = int(episode.max()) + 1 if len(episode) else episode_offset
+    cat = [np.concatenate([p[i] for p in parts]) for i in range(7)]
+    return PairedTransitions(*cat, info=first, sources=[str(p) for p in paths], skipped_nonfinite=skipped)

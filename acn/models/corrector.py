@@ -1,0 +1,112 @@
+"""The frozen corrector: ``a~ = a + F(s, a)``, saved as ``model.safetensors`` + ``config.json``.
+
+``Corrector.load(dir)`` returns a module in eval mode with gradients off. ``correct(state,
+action)`` takes the documented 43-channel state vector(s) and 12 action(s), numpy or torch,
+one row or a batch, and returns the corrected action(s) in the same type and shape.
+Nothing is pickled: weights are safetensors, everything else is JSON.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
+from torch import nn
+
+from acn.errors import UserError
+from acn.models.acn import INPUT_CHANNELS, OUTPUT_CHANNELS, ActionCorrectionNetwork
+from acn.toolkit.state import ACTION_DIM, STATE_DIM, STATE_NAMES
+
+WEIGHTS, CONFIG = "model.safetensors", "config.json"
+FORMAT = "acn-corrector/1"
+
+
+class Corrector(nn.Module):
+    """Normalisation + ActionCorrectionNetwork; see module docstring."""
+
+    def __init__(self, config: dict) -> None:
+        super().__init__()
+        self.config = config
+        net = config["network"]
+        self.register_buffer("input_index", torch.tensor([STATE_NAMES.index(n) for n in config["input_channels"]]))
+        self.register_buffer("state_mean", torch.zeros(len(config["input_channels"])))
+        self.register_buffer("state_std", torch.ones(len(config["input_channels"])))
+        self.register_buffer("action_mean", torch.zeros(ACTION_DIM))
+        self.register_buffer("action_std", torch.ones(ACTION_DIM))
+        self.register_buffer("residual_std", torch.ones(len(config["output_channels"])))
+        self.net = ActionCorrectionNetwork(
+            n_in=len(config["input_channels"]) + ACTION_DIM, n_out=len(config["output_channels"]),
+            n_action=ACTION_DIM, hidden=net["hidden"], layers=net["layers"],
+            learn_jacobian=config["variant"] == "paper")
+
+    def features(self, state: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """Normalised network input [s_in; a] from full state vectors and actions."""
+        s = (state.index_select(-1, self.input_index) - self.state_mean) / self.state_std
+        return torch.cat([s, (action - self.action_mean) / self.action_std], dim=-1)
+
+    def delta(self, state: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """F(s, a): the correction delta_a, in action units."""
+        return self.net(self.features(state, action))[0]
+
+    def correct(self, state, action):
+        """a~ = a + F(s, a), batched; numpy in -> numpy out, torch in -> torch out."""
+        as_numpy = isinstance(action, np.ndarray) or not torch.is_tensor(action)
+        dtype = self.state_std.dtype
+        s = torch.as_tensor(np.asarray(state) if as_numpy else state, dtype=dtype)
+        a = torch.as_tensor(np.asarray(action) if as_numpy else action, dtype=dtype)
+        if s.shape[-1] != STATE_DIM or a.shape[-1] != ACTION_DIM or s.shape[:-1] != a.shape[:-1]:
+            raise ValueError(f"correct() takes states (..., {STATE_DIM}) and actions (..., {ACTION_DIM}) "
+                             f"with matching batch shape; got {tuple(s.shape)} and {tuple(a.shape)}")
+        with torch.no_grad():
+            out = a + self.delta(s.reshape(-1, STATE_DIM), a.reshape(-1, ACTION_DIM)).reshape(a.shape)
+        if as_numpy:
+            return out.numpy().astype(np.asarray(action).dtype if np.asarray(action).dtype.kind == "f" else np.float64)
+        return out.to(action.dtype)
+
+    def freeze(self) -> "Corrector":
+        self.eval()
+        for p in self.parameters():
+            p.requires_grad_(False)
+        return self
+
+    # ----- files ----------------------------------------------------------------------------
+    def save(self, directory: str | Path) -> None:
+        """Write ``model.safetensors`` and ``config.json`` into ``directory`` (must exist)."""
+        d = Path(directory)
+        tensors = {k: v.detach().contiguous().cpu() for k, v in self.state_dict().items()}
+        save_file(tensors, str(d / WEIGHTS), metadata={"format": FORMAT})
+        (d / CONFIG).write_text(json.dumps({"format": FORMAT, **self.config}, indent=2))
+
+    @classmethod
+    def load(cls, directory: str | Path) -> "Corrector":
+        """Load a frozen corrector; a clear ``UserError`` for a missing, corrupt or foreign file."""
+        d = Path(directory)
+        if not (d / CONFIG).is_file() or not (d / WEIGHTS).is_file():
+            raise UserError(f"{d} is not a corrector directory (needs {CONFIG} and {WEIGHTS})")
+        try:
+            config = json.loads((d / CONFIG).read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as e:
+            raise UserError(f"{d / CONFIG} is not valid JSON: {e}") from None
+        if not isinstance(config, dict) or config.get("format") != FORMAT:
+            raise UserError(f"{d / CONFIG} is not an acn corrector config (format {FORMAT!r} expected)")
+        try:
+            model = cls(config)
+            tensors = load_file(str(d / WEIGHTS))
+            model.load_state_dict(tensors, strict=True)
+        except (SafetensorError, RuntimeError, KeyError, ValueError, OSError) as e:
+            raise UserError(f"{d / WEIGHTS} is corrupt or does not match its config: {str(e).splitlines()[0]}") from None
+        return model.freeze()
+
+
+def default_config(variant: str, hidden: int, layers: int) -> dict:
+    return {
+        "variant": variant,
+        "network": {"hidden": hidden, "layers": layers, "activation": "SiLU"},
+        "input_channels": list(INPUT_CHANNELS),
+        "output_channels": list(OUTPUT_CHANNELS),
+        "action_channels": None,
+    }

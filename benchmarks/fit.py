@@ -1,0 +1,110 @@
+"""ACN training speed, printed as name=value lines, on the same data and network in one run.
+
+baseline_samples_per_s   the paper authors' loop: a per-sample torch Dataset of tensors and a
+                         DataLoader (batch 256, shuffle), ActionNet + JacobianNet, Adam
+fit_samples_per_s        acn-fit's loop (acn.models.fit.train): tensors held whole, index batches,
+                         fused Adam, bf16 autocast where the CPU has native bf16 (fit_bf16=1)
+fit_speedup              their ratio; target >= 2.5
+fit_gflops               training FLOP/s of acn-fit's loop (forward + backward ~ 3x forward)
+matmul_gflops            this machine's float32 matmul rate on the network's widest layer shape
+matmul_bf16_gflops       the same in bf16
+fit_fraction_of_matmul   fit_gflops / matmul_gflops
+million_frames_10_epochs_s  projected time for 1M frames x 10 epochs at fit_samples_per_s
+
+Data: synthetic rows with the real shapes (40 state + 12 action inputs, 33 residual channels):
+speed does not depend on the values. Usage: python benchmarks/fit.py [--samples 100000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import torch
+from torch.utils.data import DataLoader, Dataset
+
+from acn.models.acn import INPUT_CHANNELS, OUTPUT_CHANNELS, acn_loss
+from acn.models.corrector import Corrector, default_config
+from acn.models.fit import FitConfig, Split, train
+
+N_IN, N_OUT, N_ACT = len(INPUT_CHANNELS) + 12, len(OUTPUT_CHANNELS), 12
+
+
+class PerSampleDataset(Dataset):
+    """One dict of tensors per sample, as the authors' training script builds it."""
+
+    def __init__(self, state, action, delta_s):
+        self.state, self.action, self.delta_s = state, action, delta_s
+
+    def __len__(self):
+        return len(self.state)
+
+    def __getitem__(self, i):
+        return {"state": self.state[i], "action": self.action[i], "delta_s": self.delta_s[i]}
+
+
+def baseline(model: Corrector, x: torch.Tensor, r: torch.Tensor, epochs: int) -> float:
+    ds = PerSampleDataset(x[:, :-N_ACT].clone(), x[:, -N_ACT:].clone(), r.clone())
+    loader = DataLoader(ds, batch_size=256, shuffle=True)
+    opt = torch.optim.Adam(model.net.parameters(), lr=1e-3)
+    model.net.train()
+    t, n = time.perf_counter(), 0
+    for _ in range(epochs):
+        for batch in loader:
+            inp = torch.cat([batch["state"], batch["action"]], dim=-1)
+            delta_a, jac = model.net(inp)
+            loss, _ = acn_loss(delta_a, jac, batch["delta_s"], 0.01)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            n += len(inp)
+    return n / (time.perf_counter() - t)
+
+
+def flops_per_sample(model: Corrector) -> float:
+    fwd = sum(2 * m.in_features * m.out_features for m in model.net.modules() if isinstance(m, torch.nn.Linear))
+    return 3.0 * fwd  # forward + backward (two matmuls per layer)
+
+
+def matmul_gflops(seconds: float = 1.0, dtype=torch.float32) -> float:
+    a, b = torch.randn(256, 256, dtype=dtype), torch.randn(256, 396, dtype=dtype)
+    for _ in range(10):
+        a @ b
+    t, n = time.perf_counter(), 0
+    while time.perf_counter() - t < seconds:
+        for _ in range(50):
+            a @ b
+        n += 50
+    return n * 2 * 256 * 256 * 396 / (time.perf_counter() - t) / 1e9
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--samples", type=int, default=100_000)
+    ap.add_argument("--epochs", type=int, default=2)
+    args = ap.parse_args()
+    torch.manual_seed(0)
+    x, r = torch.randn(args.samples, N_IN), torch.randn(args.samples, N_OUT)
+    make = lambda: Corrector(default_config("paper", 256, 2))  # noqa: E731
+    base = baseline(make(), x, r, args.epochs)
+    model = make()
+    cfg = FitConfig(epochs=args.epochs)
+    t = time.perf_counter()
+    train(model, Split(x, r, None), cfg)
+    ours = args.samples * args.epochs / (time.perf_counter() - t)
+    gflops = ours * flops_per_sample(model) / 1e9
+    peak = matmul_gflops()
+    print(f"baseline_samples_per_s={base:.0f}")
+    print(f"fit_samples_per_s={ours:.0f}")
+    print(f"fit_speedup={ours / base:.3f}")
+    print(f"fit_gflops={gflops:.1f}")
+    print(f"matmul_gflops={peak:.1f}")
+    print(f"fit_fraction_of_matmul={gflops / peak:.3f}")
+    print(f"matmul_bf16_gflops={matmul_gflops(dtype=torch.bfloat16):.1f}")
+    print(f"million_frames_10_epochs_s={1e7 / ours:.0f}")
+    print(f"torch_threads={torch.get_num_threads()}")
+    print(f"fit_bf16={int(cfg.use_bf16())}")
+
+
+if __name__ == "__main__":
+    main()
