@@ -22,7 +22,6 @@ from pathlib import Path
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
 import mujoco  # noqa: E402
-import numpy as np  # noqa: E402
 
 from acn.datasets.record import record  # noqa: E402
 from acn.toolkit.backends import make_backend  # noqa: E402

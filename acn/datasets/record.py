@@ -13,6 +13,7 @@ dataset (or nothing is written if none finished) and ``Interrupted`` is raised.
 from __future__ import annotations
 
 import multiprocessing as mp
+import queue
 import signal
 from dataclasses import asdict
 from pathlib import Path
@@ -96,7 +97,13 @@ def _episodes_in_order(cfg: CollectConfig, workers: int, procs: list) -> Iterato
     pending: dict[int, Episode] = {}
     for next_index in range(cfg.episodes):
         while next_index not in pending:
-            item = results.get()
+            try:
+                item = results.get(timeout=1.0)
+            except queue.Empty:
+                if not any(p.is_alive() for p in procs) and results.empty():
+                    codes = [p.exitcode for p in procs]
+                    raise RuntimeError(f"a simulation worker died (exit codes {codes})") from None
+                continue
             if isinstance(item, Exception):
                 raise item
             pending[item.index] = item

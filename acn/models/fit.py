@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from acn.datasets.reader import PairedTransitions, load_paired, percentile_filter, state_difference
+from acn.datasets.reader import PairedTransitions, load_paired, percentile_filter
 from acn.errors import UserError
 from acn.models.acn import INPUT_CHANNELS, OUTPUT_CHANNELS, VARIANTS, acn_loss
 from acn.models.corrector import Corrector, default_config
