@@ -24,6 +24,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from acn.atomic import move_into_place, temporary_beside
 from acn.datasets import schema
 from acn.errors import UserError
 from acn.toolkit.collector import Episode, Trace
@@ -70,8 +71,7 @@ class DatasetWriter:
         if self.root.exists() and not overwrite:
             raise FileExistsError(f"output directory {self.root} exists (use --overwrite to replace it)")
         self.root.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = self.root.parent / f".{self.root.name}.partial-{os.getpid()}"
-        shutil.rmtree(self._tmp, ignore_errors=True)
+        self._tmp = temporary_beside(self.root)
         self.paired, self.task = paired, task
         self.meta = LeRobotDatasetMetadata.create(
             repo_id=f"acn/{self.root.name}", fps=fps, features=schema.features(paired),
@@ -151,14 +151,7 @@ class DatasetWriter:
             self._writer = None
         self.meta._close_writer()  # flushes the buffered episode metadata
         write_info(self.meta.info, self._tmp)
-        old = None
-        if self.root.exists():
-            old = self.root.parent / f".{self.root.name}.old-{os.getpid()}"
-            self.root.rename(old)
-        self._tmp.rename(self.root)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-        return self.root
+        return move_into_place(self._tmp, self.root)
 
     def abort(self) -> None:
         """Discard everything written so far."""

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import hashlib
 import math
-import os
 import shutil
 import time
 from dataclasses import asdict, dataclass
@@ -28,6 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from acn.atomic import move_into_place, temporary_beside
 from acn.datasets.reader import PairedTransitions, load_paired, percentile_filter
 from acn.errors import UserError
 from acn.models.acn import INPUT_CHANNELS, OUTPUT_CHANNELS, VARIANTS, acn_loss
@@ -296,23 +296,15 @@ def save(model: Corrector, metrics: dict, out: str | Path, overwrite: bool = Fal
     if out.exists() and not overwrite:
         raise UserError(f"model directory {out} exists (use --overwrite to replace it)")
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.parent / f".{out.name}.partial-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
+    tmp = temporary_beside(out)
     tmp.mkdir()
     try:
         model.save(tmp)
         (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_json_default))
-        if out.exists():
-            old = out.parent / f".{out.name}.old-{os.getpid()}"
-            out.rename(old)
-            tmp.rename(out)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            tmp.rename(out)
+        return move_into_place(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    return out
 
 
 def _json_default(o):
