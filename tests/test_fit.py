@@ -159,3 +159,12 @@ def test_fit_cli_end_to_end_and_bad_input(paired, tmp_path):
         assert r.returncode == 2, (args, r.stderr)
         assert len(r.stderr.strip().splitlines()) == 1 and msg in r.stderr, r.stderr
         assert not (tmp_path / "x").exists()
+
+
+def test_no_filter_writes_standard_json(paired, tmp_path):
+    """--filter-percentile 100 keeps every row; the model files stay strict JSON."""
+    model, metrics = fit([paired], FitConfig(filter_percentile=100.0, epochs=1, eval_episodes=0), log=lambda s: None)
+    path = save(model, metrics, tmp_path / "nofilter")
+    for name in ("config.json", "metrics.json"):
+        json.loads((path / name).read_text(), parse_constant=lambda c: pytest.fail(f"{name} has {c}"))
+    assert metrics["rows"]["filter_threshold"] is None

@@ -18,7 +18,6 @@ only its own state (the paper writes F(s, a) with s_src ~ s_tgt after filtering)
 from __future__ import annotations
 
 import hashlib
-import math
 import shutil
 import time
 from dataclasses import asdict, dataclass
@@ -241,7 +240,7 @@ def fit(paths: list[str | Path], cfg: FitConfig, log=print) -> tuple[Corrector, 
     va_cpu = Split(va.x.cpu(), va.residual.cpu(), None if va.jacobian is None else va.jacobian.cpu())
     metrics: dict = {
         "rows": {"read": len(data), "skipped_nonfinite": data.skipped_nonfinite, "train": len(tr), "val": len(va),
-                 "filter_threshold": threshold},
+                 "filter_threshold": threshold if np.isfinite(threshold) else None},  # None: no filter
         "val_objective_before": val_before,
         "val_objective": objective(model, va_cpu, cfg),
         "train_history": history,
@@ -312,6 +311,4 @@ def _json_default(o):
         return o.item()
     if isinstance(o, np.ndarray):
         return o.tolist()
-    if isinstance(o, float) and math.isinf(o):
-        return None
     raise TypeError(type(o))
