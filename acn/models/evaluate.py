@@ -21,20 +21,16 @@ import numpy as np
 
 from acn.datasets.reader import state_difference
 from acn.toolkit.collector import CollectConfig, Episode, PairedRollout, Trace
+from acn.toolkit.reward import REWARD_WEIGHTS
+from acn.toolkit.reward import reward as step_reward
 from acn.toolkit.state import GROUPS, SLICES, STATE_NAMES
 
-REWARD_WEIGHTS = (1.0, 0.01, 0.5, 0.1)
 HELD_OUT_SEED_OFFSET = 1_000_003  # evaluation initial states are never training ones
 
 
 def reward(trace: Trace) -> np.ndarray:
-    """The paper's per-step reward for one simulator's trace, (T,)."""
-    w1, w2, w3, w4 = REWARD_WEIGHTS
-    s = trace.next_state
-    return (w1 * s[:, SLICES["base_linvel"]][:, 0]
-            - w2 * (trace.effort ** 2).sum(1)
-            - w3 * np.linalg.norm(s[:, SLICES["base_rpy"]][:, :2], axis=1)
-            - w4 * (s[:, SLICES["joint_vel"]] ** 2).sum(1))
+    """The paper's per-step reward for one simulator's trace, (T,) (``acn.toolkit.reward``)."""
+    return step_reward(trace.next_state, trace.effort, REWARD_WEIGHTS)
 
 
 def distribution_stats(x: np.ndarray, bins: int = 50) -> dict[str, float]:

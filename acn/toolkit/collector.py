@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from acn.toolkit.backends import BACKENDS, SimConfig, SimulationDiverged, default_state, make_backend
-from acn.toolkit.policies import POLICIES, make_policy, policy_action
+from acn.toolkit.policies import POLICIES, Policy, make_policy, policy_action
 from acn.toolkit.state import ACTION_DIM, SLICES, STATE_DIM
 
 # Fall rule (the authors' thresholds, without their yaw term, which would end a walk that turns).
@@ -71,12 +71,13 @@ class CollectConfig:
     def steps_per_episode(self) -> int:
         return int(round(self.seconds / self.sim.control_dt))
 
-    def validate(self) -> None:
+    def validate(self, builtin_policy: bool = True) -> None:
+        """Check every field; ``builtin_policy=False``: ``policy`` is only a label (a policy object runs)."""
         if self.source not in BACKENDS:
             raise ValueError(f"unknown source simulator {self.source!r}; choose from {', '.join(BACKENDS)}")
         if self.target is not None and self.target not in BACKENDS:
             raise ValueError(f"unknown target simulator {self.target!r}; choose from {', '.join(BACKENDS)}")
-        if self.policy not in POLICIES:
+        if builtin_policy and self.policy not in POLICIES:
             raise ValueError(f"unknown policy {self.policy!r}; choose from {', '.join(POLICIES)}")
         if self.episodes < 1:
             raise ValueError(f"--episodes must be >= 1, got {self.episodes}")
@@ -142,13 +143,15 @@ class _TraceBuffer:
 class PairedRollout:
     """Owns the simulators (and corrector) of one process and runs episodes with them."""
 
-    def __init__(self, config: CollectConfig, corrector=None) -> None:
-        """``corrector``: an object with ``correct(state, action)`` (overrides ``config.corrector``)."""
-        config.validate()
+    def __init__(self, config: CollectConfig, corrector=None, policy: Policy | None = None) -> None:
+        """``corrector``: an object with ``correct(state, action)`` (overrides ``config.corrector``).
+        ``policy``: any object with ``reset(rng)`` and ``__call__(state, t)`` (e.g. a trained PPO
+        policy) run instead of the built-in ``config.policy``, which then only labels the data."""
+        config.validate(builtin_policy=policy is None)
         self.config = config
         self.source = make_backend(config.source, config.sim)
         self.target = make_backend(config.target, config.sim) if config.target else None
-        self.policy = make_policy(config.policy)
+        self.policy = make_policy(config.policy) if policy is None else policy
         self.corrector = corrector
         if corrector is None and config.corrector:
             from acn.models.corrector import Corrector
