@@ -19,6 +19,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
 import mujoco  # noqa: E402
@@ -45,8 +47,8 @@ def raw_rate(name: str, steps: int) -> float:
             mujoco.mj_step(m, d, nstep=n)
         return steps / (time.perf_counter() - t)
     t = time.perf_counter()
-    for a in actions:
-        sim._advance(a)  # the PD law per physics step + stepSimulation: the minimum PyBullet needs
+    for a in actions:  # the PD law per physics step + stepSimulation: the minimum PyBullet needs
+        sim._advance(np.broadcast_to(a, (sim.config.substeps, len(a))))
     return steps / (time.perf_counter() - t)
 
 

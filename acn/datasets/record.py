@@ -49,7 +49,7 @@ def collection_metadata(cfg: CollectConfig) -> dict:
         "target": ({"simulator": cfg.target, "version": simulator_version(cfg.target)} if cfg.target else None),
         "physics_dt": sim.physics_dt, "substeps": sim.substeps, "control_hz": round(1.0 / sim.control_dt, 9),
         "action_mode": sim.action_mode, "kp": sim.kp, "kd": sim.kd, "torque_limit": sim.torque_limit,
-        "model_params": {k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in asdict(sim.params).items()},
+        "model_params": sim.params.as_json(),
         "policy": cfg.policy, "seed": cfg.seed, "seconds": cfg.seconds, "episodes_requested": cfg.episodes,
         "init_noise": asdict(cfg.init_noise),
         "corrector": cfg.corrector,
@@ -60,13 +60,11 @@ def collection_metadata(cfg: CollectConfig) -> dict:
 
 def config_from_metadata(acn: dict, **overrides) -> CollectConfig:
     """The collection config a dataset was recorded with (inverse of ``collection_metadata``)."""
-    import numpy as np
-
     from acn.toolkit.backends import SimConfig
     from acn.toolkit.collector import InitNoise
     from acn.toolkit.robot import ModelParams
 
-    params = ModelParams(**{k: (np.asarray(v) if isinstance(v, list) else v) for k, v in acn["model_params"].items()})
+    params = ModelParams.from_json(acn["model_params"])
     sim = SimConfig(physics_dt=acn["physics_dt"], substeps=acn["substeps"], action_mode=acn["action_mode"],
                     kp=acn["kp"], kd=acn["kd"], torque_limit=acn["torque_limit"], params=params)
     kw = dict(source=acn["source"]["simulator"], target=(acn["target"] or {}).get("simulator"), policy=acn["policy"],

@@ -41,20 +41,83 @@ def urdf_path() -> str:
     return path
 
 
+def combine_point_mass(mass: float, com: np.ndarray, inertia: np.ndarray, m_p: float, p: np.ndarray):
+    """A rigid body (mass kg, COM m, 3x3 inertia about the COM) plus a point mass at ``p``.
+
+    Returns (mass, COM, 3x3 inertia about the new COM), all in the body frame.
+    """
+    total = mass + m_p
+    c = (mass * com + m_p * p) / total
+
+    def shift(m: float, r: np.ndarray) -> np.ndarray:  # parallel-axis term of mass m at offset r
+        return m * (r @ r * np.eye(3) - np.outer(r, r))
+
+    return total, c, inertia + shift(mass, com - c) + shift(m_p, p - c)
+
+
+JOINT_FIELDS = ("joint_damping", "joint_friction", "armature", "motor_strength", "torque_limit", "kp_scale",
+                "kd_scale", "encoder_offset", "backlash")
+
+
+def _per_joint(value, default: float) -> np.ndarray:
+    v = default if value is None else value
+    return np.broadcast_to(np.asarray(v, dtype=float), (NUM_JOINTS,)).copy()
+
+
 @dataclass
 class ModelParams:
-    """Physical parameters written into a simulator when its model is built.
+    """The physical description beyond the URDF; both backends realise every field.
 
-    Nominal values reproduce the URDF (which has no joint damping or friction) on rigid
-    ground of friction 1. Physical effects (``acn.toolkit.effects``) change these values;
-    each backend writes all of them, so both simulators see the same description.
+    Nominal values reproduce the URDF (no joint damping, friction or rotor inertia) on rigid
+    ground of friction 1, driven exactly by the control law of ``SimConfig``. Physical effects
+    (``acn.toolkit.effects``) write into these fields; per-joint fields are (12,) arrays in
+    ``JOINT_NAMES`` order (a scalar is broadcast). Where each field lands in each simulator:
+
+    ==================  =======================================  ===================================
+    field               MuJoCo                                   PyBullet
+    ==================  =======================================  ===================================
+    joint_damping       ``joint.damping``                        ``changeDynamics(jointDamping)``
+    joint_friction      ``joint.frictionloss``                   velocity motor, max force = value
+    armature            ``joint.armature``                       child link inertia about the axis
+    payload_*           trunk mass, COM and inertia combined     trunk inertial of the loaded URDF
+    ground_friction     floor and foot ``geom.friction``         ``lateralFriction`` of the feet
+    latency ... backlash  the control law (``acn.toolkit.actuation``): native actuator parameters
+                        in MuJoCo where the law allows, otherwise a torque computed per physics
+                        step, as in PyBullet
+    ==================  =======================================  ===================================
     """
 
     joint_damping: np.ndarray = field(default_factory=lambda: np.zeros(NUM_JOINTS))   # N m s/rad
     joint_friction: np.ndarray = field(default_factory=lambda: np.zeros(NUM_JOINTS))  # N m (Coulomb)
-    payload_mass: float = 0.0   # kg added to the trunk at its centre of mass
+    armature: np.ndarray = field(default_factory=lambda: np.zeros(NUM_JOINTS))        # kg m^2, reflected rotor
+    payload_mass: float = 0.0     # kg, a point mass rigidly attached to the trunk
+    payload_com: np.ndarray = field(default_factory=lambda: np.zeros(3))  # m, trunk frame (link origin)
     ground_friction: float = 1.0  # sliding friction coefficient, foot-ground
+    latency: float = 0.0          # s, a command reaches the motors this late
+    motor_strength: np.ndarray = field(default_factory=lambda: np.ones(NUM_JOINTS))   # produced / commanded
+    torque_limit: np.ndarray | None = None  # N m per joint; None: the control settings' limit
+    kp_scale: np.ndarray = field(default_factory=lambda: np.ones(NUM_JOINTS))
+    kd_scale: np.ndarray = field(default_factory=lambda: np.ones(NUM_JOINTS))
+    encoder_offset: np.ndarray = field(default_factory=lambda: np.zeros(NUM_JOINTS))  # rad, reading - true angle
+    backlash: np.ndarray = field(default_factory=lambda: np.zeros(NUM_JOINTS))        # rad, dead band width
 
     def __post_init__(self) -> None:
-        self.joint_damping = np.broadcast_to(np.asarray(self.joint_damping, float), (NUM_JOINTS,)).copy()
-        self.joint_friction = np.broadcast_to(np.asarray(self.joint_friction, float), (NUM_JOINTS,)).copy()
+        for name in JOINT_FIELDS:
+            if name == "torque_limit" and self.torque_limit is None:
+                continue
+            setattr(self, name, _per_joint(getattr(self, name), 0.0))
+        self.payload_com = np.broadcast_to(np.asarray(self.payload_com, dtype=float), (3,)).copy()
+        self.payload_mass, self.ground_friction = float(self.payload_mass), float(self.ground_friction)
+        self.latency = float(self.latency)
+
+    def copy(self) -> "ModelParams":
+        return ModelParams(**{k: (np.copy(v) if isinstance(v, np.ndarray) else v) for k, v in vars(self).items()})
+
+    def as_json(self) -> dict:
+        return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in vars(self).items()}
+
+    @classmethod
+    def from_json(cls, d: dict) -> "ModelParams":
+        """Inverse of ``as_json``; keys missing (older datasets) take their nominal value."""
+        names = {f for f in cls.__dataclass_fields__}
+        return cls(**{k: v for k, v in d.items() if k in names})

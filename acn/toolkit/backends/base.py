@@ -9,12 +9,18 @@ computes the IMU, validates actions and detects blow-ups. Each backend implement
 - ``_read_dynamics()``    trunk-origin pose and velocities in the world frame, joints,
 - ``_write_dynamics()``   the inverse,
 - ``_read_contacts()``    which feet touch the ground,
-- ``_advance(action)``    run ``substeps`` physics steps under the action, return the mean
+- ``_advance(commands)``  run ``substeps`` physics steps, step k under ``commands[k]`` (the
+                          action after the latency of the signal path), return the mean
                           applied joint torque over them.
 
-Control law (identical in both backends). ``position`` mode: at every physics step
-``tau = clip(kp * (q_target - q) - kd * qdot, -limit, limit)``. ``torque`` mode: the action is
-a joint torque, clipped to the same limit and held over the control step.
+Control law (identical in both backends, ``acn.toolkit.actuation``). Nominal ``position`` mode:
+at every physics step ``tau = clip(kp * (q_target - q) - kd * qdot, -limit, limit)``. ``torque``
+mode: the action is a joint torque, clipped to the same limit and held over the control step.
+Physical effects in ``SimConfig.params`` change this law (latency, gains, strength, limits,
+encoder offsets, dead band) the same way in both backends.
+
+Joint angles in the state are encoder READINGS (true angle + ``encoder_offset``): ``set_state``
+subtracts the offset before writing the simulator, ``get_state`` adds it back.
 """
 
 from __future__ import annotations
@@ -25,6 +31,7 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
+from acn.toolkit.actuation import Actuation
 from acn.toolkit.robot import GRAVITY, STANCE, STANDING_HEIGHT, ModelParams
 from acn.toolkit.rotations import quat_to_matrix, quat_to_rpy, rpy_to_quat
 from acn.toolkit.state import ACTION_DIM, FOOT_NAMES, NUM_JOINTS, SLICES, STATE_DIM
@@ -94,7 +101,9 @@ class Backend(ABC):
     def __init__(self, config: SimConfig | None = None) -> None:
         self.config = config or SimConfig()
         self.config.validate()
+        self.actuation = Actuation.from_config(self.config)
         self._build()
+        self._history: np.ndarray | None = None  # previous actions (oldest first) for the latency
         self._linvel_world = np.zeros(3)
         self._contact = np.zeros(len(FOOT_NAMES))
         self._imu_acc = np.array([0.0, 0.0, GRAVITY])
@@ -125,7 +134,7 @@ class Backend(ABC):
         s = np.empty(STATE_DIM)
         s[SLICES["base_pos"]] = pos
         s[SLICES["base_rpy"]] = quat_to_rpy(quat)
-        s[SLICES["joint_pos"]] = q
+        s[SLICES["joint_pos"]] = q + self.actuation.offset
         s[SLICES["base_linvel"]] = rot.T @ v_world
         s[SLICES["base_angvel"]] = rot.T @ w_world
         s[SLICES["joint_vel"]] = qd
@@ -133,17 +142,23 @@ class Backend(ABC):
         s[SLICES["imu_acc"]] = self._imu_acc
         return s
 
-    def set_state(self, state: np.ndarray) -> None:
-        """Write the dynamic channels into the simulator; keep the sensor channels as readings."""
+    def set_state(self, state: np.ndarray, previous_actions: np.ndarray | None = None) -> None:
+        """Write the dynamic channels into the simulator; keep the sensor channels as readings.
+
+        ``previous_actions`` (n, 12), oldest first: the actions before this state, which a
+        model with latency still applies early in the next step. Without them the robot is
+        taken to have received the next action all along.
+        """
         s = np.asarray(state, dtype=np.float64)
         if s.shape != (STATE_DIM,) or not np.all(np.isfinite(s)):
             raise ValueError(f"state must be a finite vector of shape ({STATE_DIM},)")
+        self._history = None if previous_actions is None else np.asarray(previous_actions, float).reshape(-1, ACTION_DIM)
         quat = rpy_to_quat(s[SLICES["base_rpy"]])
         rot = quat_to_matrix(quat)
         v_world = rot @ s[SLICES["base_linvel"]]
         self._write_dynamics(
             s[SLICES["base_pos"]], quat, v_world, rot @ s[SLICES["base_angvel"]],
-            s[SLICES["joint_pos"]], s[SLICES["joint_vel"]],
+            s[SLICES["joint_pos"]] - self.actuation.offset, s[SLICES["joint_vel"]],
         )
         self._linvel_world = v_world
         self._contact = s[SLICES["contact"]].copy()
@@ -159,7 +174,7 @@ class Backend(ABC):
         if a.shape != (ACTION_DIM,) or not np.all(np.isfinite(a)):
             raise ValueError(f"action must be a finite vector of shape ({ACTION_DIM},)")
         self._state = None
-        tau = self._advance(a)
+        tau = self._advance(self._commands(a))
         dyn = self._read_dynamics()
         pos, quat, v_world, w_world, q, qd = dyn
         self._check_sane(pos, v_world, w_world, q, qd)
@@ -181,9 +196,18 @@ class Backend(ABC):
         self.close()
 
     # ----- shared helpers ---------------------------------------------------------------
-    def _clip_torque(self, tau: np.ndarray) -> np.ndarray:
-        lim = self.config.torque_limit
-        return np.clip(tau, -lim, lim)
+    def _commands(self, action: np.ndarray) -> np.ndarray:
+        """(substeps, 12) per-physics-step commands for ``action``; remembers it for the latency."""
+        hist = self.actuation.history
+        if hist == 0 and self.actuation.latency == 0:
+            return np.broadcast_to(action, (self.config.substeps, ACTION_DIM))
+        past = self._history if self._history is not None else np.empty((0, ACTION_DIM))
+        if len(past) < hist:  # earlier actions unknown: taken equal to the oldest one known
+            fill = past[0] if len(past) else action
+            past = np.concatenate([np.repeat(fill[None], hist - len(past), axis=0), past])
+        window = np.concatenate([past[len(past) - hist:], action[None]])
+        self._history = window[1:]
+        return self.actuation.commands(window)
 
     @staticmethod
     def _check_sane(pos, v_world, w_world, q, qd) -> None:
@@ -214,7 +238,8 @@ class Backend(ABC):
         """(4,) 0/1 per foot in ``FOOT_NAMES`` order."""
 
     @abstractmethod
-    def _advance(self, action: np.ndarray) -> np.ndarray: ...
+    def _advance(self, commands: np.ndarray) -> np.ndarray:
+        """Run ``substeps`` physics steps, step k under ``commands[k]`` (12,); mean applied torque."""
 
 
 __all__ = ["Backend", "SimConfig", "SimulationDiverged", "pd_torque", "default_state",

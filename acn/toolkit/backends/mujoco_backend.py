@@ -1,12 +1,18 @@
 """MuJoCo implementation of ``Backend``: the A1 URDF compiled through ``mujoco.MjSpec``.
 
 The spec adds what a URDF lacks: a free joint on the trunk, a floor, and 12 actuators that
-realise the control law of ``acn.toolkit.backends.base`` inside MuJoCo, so the same model
-can be stepped with ``mj_step(nstep=...)`` or re-simulated in batches with ``mujoco.rollout``:
+realise the control law of ``acn.toolkit.actuation`` inside MuJoCo, so the same model can be
+stepped with ``mj_step`` or re-simulated in batches with ``mujoco.rollout``:
 
-- position mode: ``tau = kp * (ctrl - q) - kd * qdot`` (gain kp, affine bias (0, -kp, -kd)),
-  force-limited to +-torque_limit;
-- torque mode: ``tau = ctrl``, ctrl-limited to +-torque_limit.
+- position mode: ``tau = s kp (ctrl - q - offset) - s kd qdot`` (gain s kp, affine bias
+  (-s kp offset, -s kp, -s kd)), force-limited to +-s limit, with s the motor strength;
+- torque mode: ``tau = s ctrl``, ctrl-limited to +-limit;
+- position mode with a dead band (backlash), which no affine actuator can express: plain
+  motors (``tau = ctrl``), the torque computed by ``Actuation.torque`` every physics step.
+
+The physical parameters of ``ModelParams`` are written into the spec: joint damping,
+frictionloss and armature, the payload combined into the trunk's inertia, geom friction.
+One ``actuatorfrc`` sensor per joint gives the applied torque in ``mujoco.rollout``'s sensor data.
 
 Euler integration, like PyBullet's semi-implicit step, and only robot-floor contacts
 (PyBullet does not collide a robot with itself by default).
@@ -17,14 +23,32 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from acn.toolkit.actuation import Actuation
 from acn.toolkit.backends.base import Backend, SimConfig, SimulationDiverged
-from acn.toolkit.robot import GRAVITY, TRUNK_LINK, URDF_FOOT_LINK, URDF_JOINT, urdf_path
-from acn.toolkit.state import FOOT_NAMES, JOINT_NAMES
+from acn.toolkit.robot import GRAVITY, TRUNK_LINK, URDF_FOOT_LINK, URDF_JOINT, combine_point_mass, urdf_path
+from acn.toolkit.rotations import quat_to_matrix, quat_to_rpy, rpy_to_quat
+from acn.toolkit.state import FOOT_NAMES, JOINT_NAMES, SLICES, STATE_DIM
+
+
+def _add_payload(body, m_p: float, p: np.ndarray) -> None:
+    """Combine a point mass into ``body``'s inertial as the URDF gives it (mass, ipos, fullinertia)."""
+    f = np.asarray(body.fullinertia, float)
+    if np.isnan(f[0]):  # diagonal inertia in the frame iquat
+        rot = np.empty(9)
+        mujoco.mju_quat2Mat(rot, np.asarray(body.iquat, float))
+        rot = rot.reshape(3, 3)
+        inertia = rot @ np.diag(np.asarray(body.inertia, float)) @ rot.T
+    else:
+        inertia = np.array([[f[0], f[3], f[4]], [f[3], f[1], f[5]], [f[4], f[5], f[2]]])
+    mass, com, full = combine_point_mass(body.mass, np.asarray(body.ipos, float), inertia, m_p, p)
+    body.mass, body.ipos, body.iquat = mass, com, [1.0, 0.0, 0.0, 0.0]
+    body.fullinertia = [full[0, 0], full[1, 1], full[2, 2], full[0, 1], full[0, 2], full[1, 2]]
 
 
 def build_spec(config: SimConfig) -> mujoco.MjSpec:
-    """The nominal A1 model as an ``MjSpec`` (public: outside code may edit and compile it)."""
+    """The A1 model as an ``MjSpec`` (public: outside code may edit and compile it)."""
     cfg, prm = config, config.params
+    act = Actuation.from_config(cfg)
     spec = mujoco.MjSpec.from_file(urdf_path())
     spec.option.timestep = cfg.physics_dt
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_EULER
@@ -34,7 +58,8 @@ def build_spec(config: SimConfig) -> mujoco.MjSpec:
 
     trunk = spec.body(TRUNK_LINK)
     trunk.add_freejoint(name="root")
-    trunk.mass += prm.payload_mass
+    if prm.payload_mass > 0:
+        _add_payload(trunk, prm.payload_mass, prm.payload_com)
     for geom in spec.geoms:  # robot geoms touch the floor only
         geom.contype, geom.conaffinity = 1, 0
         geom.friction[0] = prm.ground_friction
@@ -48,21 +73,85 @@ def build_spec(config: SimConfig) -> mujoco.MjSpec:
         joint = spec.joint(URDF_JOINT[jname])
         joint.damping[0] = float(prm.joint_damping[k])  # MuJoCo 4: polynomial coefficients, [0] linear
         joint.frictionloss = float(prm.joint_friction[k])
+        joint.armature = float(prm.armature[k])
         joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_FALSE  # the control law limits torque
-        act = spec.add_actuator(name=jname, target=URDF_JOINT[jname], trntype=mujoco.mjtTrn.mjTRN_JOINT)
-        lim = cfg.torque_limit
-        act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
-        act.forcerange = [-lim, lim]
-        if cfg.action_mode == "position":
-            act.gainprm[0] = cfg.kp
-            act.biastype = mujoco.mjtBias.mjBIAS_AFFINE
-            act.biasprm[:3] = [0.0, -cfg.kp, -cfg.kd]
-            act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
-        else:
-            act.gainprm[0] = 1.0
-            act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
-            act.ctrlrange = [-lim, lim]
+        a = spec.add_actuator(name=jname, target=URDF_JOINT[jname], trntype=mujoco.mjtTrn.mjTRN_JOINT)
+        s, lim = float(act.strength[k]), float(act.limit[k])
+        a.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
+        a.forcerange = [-s * lim, s * lim]
+        if cfg.action_mode == "position" and act.native:
+            kp, kd = s * float(act.kp[k]), s * float(act.kd[k])
+            a.gainprm[0] = kp
+            a.biastype = mujoco.mjtBias.mjBIAS_AFFINE
+            a.biasprm[:3] = [-kp * float(act.offset[k]), -kp, -kd]
+            a.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
+        elif cfg.action_mode == "torque":
+            a.gainprm[0] = s
+            a.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+            a.ctrlrange = [-lim, lim]
+        else:  # the torque is computed by Actuation.torque each physics step
+            a.gainprm[0] = 1.0
+            a.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
+        spec.add_sensor(name=f"{jname}_torque", type=mujoco.mjtSensor.mjSENS_ACTUATORFRC,
+                        objtype=mujoco.mjtObj.mjOBJ_ACTUATOR, objname=jname)
     return spec
+
+
+class PhysicsLayout:
+    """Our state vectors <-> MuJoCo full physics states, many rows at once (no MjData).
+
+    A physics state is ``[time, qpos (19), qvel (18)]`` (``mjSTATE_FULLPHYSICS``): trunk
+    origin position and quaternion (w, x, y, z) in the world, joint angles, trunk linear velocity
+    (world frame) and angular velocity (body frame), joint velocities. Joint angles in our
+    states are encoder readings: the true angle is ``reading - offset``.
+    """
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        jids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, URDF_JOINT[j]) for j in JOINT_NAMES]
+        self.qadr = np.array([model.jnt_qposadr[j] for j in jids])
+        self.dadr = np.array([model.jnt_dofadr[j] for j in jids])
+        self.nq, self.nv = model.nq, model.nv
+        self.size = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        if self.size != 1 + self.nq + self.nv:
+            raise RuntimeError(f"unexpected MuJoCo physics state size {self.size}")
+
+    def to_physics(self, states: np.ndarray, offset: np.ndarray) -> np.ndarray:
+        """(N, 43) states, (N, 12) or (12,) encoder offsets -> (N, size) physics states."""
+        s = np.asarray(states, dtype=np.float64)
+        out = np.zeros((len(s), self.size))
+        qpos, qvel = out[:, 1:1 + self.nq], out[:, 1 + self.nq:]
+        quat = np.stack(rpy_to_quat(s[:, SLICES["base_rpy"]].T), axis=1)  # (N, 4) x, y, z, w
+        rot = np.moveaxis(np.array(quat_to_matrix(quat.T)), -1, 0)       # (N, 3, 3) body -> world
+        qpos[:, 0:3] = s[:, SLICES["base_pos"]]
+        qpos[:, 3:7] = quat[:, [3, 0, 1, 2]]
+        qpos[:, self.qadr] = s[:, SLICES["joint_pos"]] - offset
+        qvel[:, 0:3] = np.einsum("nij,nj->ni", rot, s[:, SLICES["base_linvel"]])
+        qvel[:, 3:6] = s[:, SLICES["base_angvel"]]
+        qvel[:, self.dadr] = s[:, SLICES["joint_vel"]]
+        return out
+
+    def to_states(self, physics: np.ndarray, before: np.ndarray, offset: np.ndarray, control_dt: float) -> np.ndarray:
+        """(N, size) physics states at the end of a control step -> (N, 43) states.
+
+        ``before``: the physics states one control step earlier (for the IMU, the mean specific
+        force over the step). Contacts are not part of a physics state: they come back NaN.
+        """
+        qpos, qvel = physics[:, 1:1 + self.nq], physics[:, 1 + self.nq:]
+        quat = qpos[:, [4, 5, 6, 3]]  # x, y, z, w
+        rot = np.moveaxis(np.array(quat_to_matrix(quat.T)), -1, 0)
+        v_world = qvel[:, 0:3]
+        acc = (v_world - before[:, 1 + self.nq:1 + self.nq + 3]) / control_dt
+        acc[:, 2] += GRAVITY
+        out = np.empty((len(physics), STATE_DIM))
+        out[:, SLICES["base_pos"]] = qpos[:, 0:3]
+        out[:, SLICES["base_rpy"]] = np.stack(quat_to_rpy(quat.T), axis=1)
+        out[:, SLICES["joint_pos"]] = qpos[:, self.qadr] + offset
+        out[:, SLICES["base_linvel"]] = np.einsum("nji,nj->ni", rot, v_world)
+        out[:, SLICES["base_angvel"]] = qvel[:, 3:6]
+        out[:, SLICES["joint_vel"]] = qvel[:, self.dadr]
+        out[:, SLICES["contact"]] = np.nan
+        out[:, SLICES["imu_acc"]] = np.einsum("nji,nj->ni", rot, acc)
+        return out
 
 
 class MuJoCoBackend(Backend):
@@ -75,9 +164,8 @@ class MuJoCoBackend(Backend):
         self.model = self.spec.compile()
         self.data = mujoco.MjData(self.model)
         m = self.model
-        jids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, URDF_JOINT[j]) for j in JOINT_NAMES]
-        self._qadr = np.array([m.jnt_qposadr[j] for j in jids])
-        self._dadr = np.array([m.jnt_dofadr[j] for j in jids])
+        self.layout = PhysicsLayout(m)
+        self._qadr, self._dadr = self.layout.qadr, self.layout.dadr
         self._floor = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "floor")
         self._foot_of_geom = np.full(m.ngeom, -1)  # geom id -> foot index, -1 if not a foot
         for k, f in enumerate(FOOT_NAMES):
@@ -133,14 +221,17 @@ class MuJoCoBackend(Backend):
         out[foot[foot >= 0]] = 1.0
         return out
 
-    def _advance(self, action: np.ndarray) -> np.ndarray:
-        m, d = self.model, self.data
-        d.ctrl[:] = action
+    def _advance(self, commands: np.ndarray) -> np.ndarray:
+        m, d, act = self.model, self.data, self.actuation
         total = np.zeros(12)
         bad = d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number
-        for _ in range(self.config.substeps):
+        for command in commands:
+            if act.native:
+                d.ctrl[:] = command
+            else:
+                d.ctrl[:] = act.torque(command, d.qpos[self._qadr], d.qvel[self._dadr])
             mujoco.mj_step(m, d)
             np.add(total, d.actuator_force, out=total)
         if d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number > bad:
             raise SimulationDiverged("MuJoCo reported a non-finite or huge acceleration")
-        return total / self.config.substeps
+        return total / len(commands)

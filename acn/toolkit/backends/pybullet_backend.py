@@ -6,6 +6,8 @@ import contextlib
 import ctypes
 import os
 import sys
+import tempfile
+import xml.etree.ElementTree as ET
 from functools import partial
 
 import numpy as np
@@ -34,9 +36,9 @@ with _quiet_stdio():
     import pybullet
 import pybullet_data  # noqa: E402
 
-from acn.toolkit.backends.base import Backend, pd_torque
+from acn.toolkit.backends.base import Backend
+from acn.toolkit.robot import GRAVITY, TRUNK_LINK, URDF_FOOT_LINK, URDF_JOINT, ModelParams, combine_point_mass, urdf_path
 from acn.toolkit.rotations import cross
-from acn.toolkit.robot import GRAVITY, TRUNK_LINK, URDF_FOOT_LINK, URDF_JOINT, urdf_path
 from acn.toolkit.state import FOOT_NAMES, JOINT_NAMES
 
 
@@ -54,6 +56,51 @@ class _Client:
         return fn
 
 
+def _inertia_tensor(inertial: ET.Element) -> np.ndarray:
+    i = {k: float(v) for k, v in inertial.find("inertia").attrib.items()}
+    return np.array([[i["ixx"], i["ixy"], i["ixz"]], [i["ixy"], i["iyy"], i["iyz"]], [i["ixz"], i["iyz"], i["izz"]]])
+
+
+def _set_inertia(inertial: ET.Element, tensor: np.ndarray) -> None:
+    names = {"ixx": (0, 0), "ixy": (0, 1), "ixz": (0, 2), "iyy": (1, 1), "iyz": (1, 2), "izz": (2, 2)}
+    inertial.find("inertia").attrib.update({k: repr(float(tensor[ij])) for k, ij in names.items()})
+
+
+def urdf_with_inertials(params: ModelParams) -> str | None:
+    """The A1 URDF text with the payload and rotor inertias written in, or None if nominal.
+
+    PyBullet has no joint armature: the rotor is added to the child link as a thin disc of
+    inertia ``armature`` about the joint axis (and half of it about the two other axes, which
+    keeps the tensor physical; unlike a true reflected inertia it also couples to the trunk's
+    rotation). The payload is combined into the trunk's inertial (mass, origin, tensor). The
+    inertial origins of the A1's links carry no rotation, so tensors are in the link frame.
+    """
+    if params.payload_mass <= 0 and not np.any(params.armature):
+        return None
+    root = ET.parse(urdf_path()).getroot()
+    links = {link.get("name"): link for link in root.findall("link")}
+    base = os.path.dirname(urdf_path())
+    for mesh in root.iter("mesh"):  # the rewritten file lives elsewhere: absolute mesh paths
+        mesh.set("filename", os.path.join(base, mesh.get("filename")))
+    if params.payload_mass > 0:
+        inertial = links[TRUNK_LINK].find("inertial")
+        origin = inertial.find("origin")
+        com = np.array([float(x) for x in origin.get("xyz").split()])
+        mass, com, tensor = combine_point_mass(float(inertial.find("mass").get("value")), com,
+                                               _inertia_tensor(inertial), params.payload_mass, params.payload_com)
+        inertial.find("mass").set("value", repr(float(mass)))
+        origin.set("xyz", " ".join(repr(float(x)) for x in com))
+        _set_inertia(inertial, tensor)
+    joints = {j.get("name"): j for j in root.findall("joint")}  # not those inside <transmission>
+    for k, name in enumerate(JOINT_NAMES):
+        if params.armature[k]:
+            joint = joints[URDF_JOINT[name]]
+            axis = np.array([float(x) for x in joint.find("axis").get("xyz").split()])
+            inertial = links[joint.find("child").get("link")].find("inertial")
+            _set_inertia(inertial, _inertia_tensor(inertial) + params.armature[k] * (np.eye(3) + np.outer(axis, axis)) / 2)
+    return ET.tostring(root, encoding="unicode")
+
+
 class PyBulletBackend(Backend):
     """The A1 in PyBullet.
 
@@ -68,6 +115,13 @@ class PyBulletBackend(Backend):
     def _build(self) -> None:
         self._client = _Client()
         self._client.setAdditionalSearchPath(pybullet_data.getDataPath())
+        self._urdf, self._own_urdf = urdf_path(), False
+        text = urdf_with_inertials(self.config.params)
+        if text is not None:
+            fd, self._urdf = tempfile.mkstemp(prefix="acn_a1_", suffix=".urdf")
+            with os.fdopen(fd, "w") as f:
+                f.write(text)
+            self._own_urdf = True
         self._load_world()
 
     def _restore_initial(self) -> None:
@@ -81,7 +135,7 @@ class PyBulletBackend(Backend):
         c.setGravity(0, 0, -GRAVITY)
         c.setPhysicsEngineParameter(fixedTimeStep=cfg.physics_dt, numSubSteps=0)
         self._plane = c.loadURDF("plane.urdf")
-        self._robot = c.loadURDF(urdf_path(), [0, 0, 0.5], flags=pybullet.URDF_USE_INERTIA_FROM_FILE | pybullet.URDF_IGNORE_VISUAL_SHAPES)
+        self._robot = c.loadURDF(self._urdf, [0, 0, 0.5], flags=pybullet.URDF_USE_INERTIA_FROM_FILE | pybullet.URDF_IGNORE_VISUAL_SHAPES)
         joints = [c.getJointInfo(self._robot, i) for i in range(c.getNumJoints(self._robot))]
         by_name = {j[1].decode(): j[0] for j in joints}
         links = {j[12].decode(): j[0] for j in joints}
@@ -136,18 +190,18 @@ class PyBulletBackend(Backend):
         touching = {p[3] for p in pts if p[9] > 0.0}
         return np.array([1.0 if f in touching else 0.0 for f in self._feet])
 
-    def _advance(self, action: np.ndarray) -> np.ndarray:
-        cfg, r, joints, c = self.config, self._robot, self._joints, self._client
+    def _advance(self, commands: np.ndarray) -> np.ndarray:
+        r, joints, c, act = self._robot, self._joints, self._client, self.actuation
         total = np.zeros(12)
-        tau = self._clip_torque(action)
-        for _ in range(cfg.substeps):
-            if cfg.action_mode == "position":
+        q = qd = None  # torque mode needs no joint reading
+        for command in commands:
+            if act.mode == "position":
                 q, qd = self._joint_state()
-                tau = pd_torque(action, q, qd, cfg)
+            tau = act.torque(command, q, qd)
             c.setJointMotorControlArray(r, joints, pybullet.TORQUE_CONTROL, forces=tau)
             c.stepSimulation()
             total += tau
-        return total / cfg.substeps
+        return total / len(commands)
 
     def close(self) -> None:
         if getattr(self, "_client", None) is not None:
@@ -156,3 +210,6 @@ class PyBulletBackend(Backend):
             except pybullet.error:
                 pass
             self._client = None
+        if getattr(self, "_own_urdf", False):
+            os.unlink(self._urdf)
+            self._own_urdf = False

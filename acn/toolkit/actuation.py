@@ -1,0 +1,107 @@
+"""The joint control law and its signal path, the same in every backend.
+
+From the action a_t to the torque on each joint, per physics step (all per joint):
+
+1. **latency** L: the command in force during a physics step is the zero-order-held action
+   stream delayed by L, averaged over that step (so it is continuous in L; a whole number of
+   physics steps gives exactly the action sent that many steps earlier);
+2. **reading**: the encoder reads ``q + encoder_offset``; the PD acts on the reading;
+3. **position mode**: ``e = deadband(command - reading, backlash / 2)``,
+   ``tau_cmd = clip(kp_scale kp e - kd_scale kd qdot, -limit, limit)``;
+   **torque mode**: ``tau_cmd = clip(command, -limit, limit)``;
+4. **motor strength**: the joint receives ``strength * tau_cmd``.
+
+With nominal parameters this is exactly ``SimConfig``'s PD law. MuJoCo realises steps 2-4 with
+native actuator parameters when there is no dead band (``Actuation.native``); otherwise, and
+in PyBullet, ``torque`` is evaluated in Python every physics step. Latency is always realised
+by the command sequence (``commands``), so a re-simulation from a recorded state only needs the
+recorded previous actions.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from acn.toolkit.state import NUM_JOINTS
+
+
+@dataclass(frozen=True)
+class Actuation:
+    """The resolved control law of one model; per-joint (12,) arrays, see module docstring."""
+
+    mode: str               # "position" or "torque"
+    kp: np.ndarray          # N m/rad, gains after kp_scale
+    kd: np.ndarray          # N m s/rad, after kd_scale
+    limit: np.ndarray       # N m, commanded-torque limit
+    strength: np.ndarray    # produced / commanded torque
+    offset: np.ndarray      # rad, encoder reading - true joint angle
+    deadband: np.ndarray    # rad, half-width of the dead band (backlash / 2)
+    latency: float          # s
+    physics_dt: float       # s
+    substeps: int
+
+    @classmethod
+    def from_config(cls, config) -> "Actuation":
+        """From a ``SimConfig`` (control settings + ``ModelParams``)."""
+        p = config.params
+        limit = config.torque_limit if p.torque_limit is None else p.torque_limit
+        ones = np.ones(NUM_JOINTS)
+        return cls(mode=config.action_mode, kp=config.kp * p.kp_scale, kd=config.kd * p.kd_scale,
+                   limit=limit * ones, strength=p.motor_strength.copy(), offset=p.encoder_offset.copy(),
+                   deadband=p.backlash / 2.0, latency=float(p.latency), physics_dt=config.physics_dt,
+                   substeps=config.substeps)
+
+    @property
+    def native(self) -> bool:
+        """True if MuJoCo's affine actuators can realise the law (no dead band)."""
+        return self.mode == "torque" or not np.any(self.deadband > 0)
+
+    @property
+    def history(self) -> int:
+        """How many previous actions the latency reaches back to (0 without latency)."""
+        control_dt = self.physics_dt * self.substeps
+        return int(math.ceil(self.latency / control_dt - 1e-9)) if self.latency > 0 else 0
+
+    # ----- step 1: which command is in force during each physics step ----------------------
+    def command_weights(self) -> np.ndarray:
+        """W (substeps, history + 1): command during physics step k = sum_h W[k, h] a_{t - H + h}.
+
+        Column H is the current action a_t, column 0 the oldest one needed.
+        """
+        n, dt, hist = self.substeps, self.physics_dt, self.history
+        control_dt = n * dt
+        w = np.zeros((n, hist + 1))
+        for k in range(n):
+            lo, hi = k * dt - self.latency, (k + 1) * dt - self.latency  # delayed window, s from t
+            for h in range(hist + 1):
+                c_lo, c_hi = (h - hist) * control_dt, (h - hist + 1) * control_dt  # when a_{t-H+h} was held
+                w[k, h] = max(0.0, min(hi, c_hi) - max(lo, c_lo)) / dt
+        return w
+
+    def commands(self, actions: np.ndarray) -> np.ndarray:
+        """Per-physics-step commands for consecutive control steps.
+
+        ``actions`` (..., history + K, 12): the ``history`` previous actions, then the K actions
+        to apply. Returns (..., K * substeps, 12).
+        """
+        hist = self.history
+        if hist == 0 and self.latency == 0:
+            return np.repeat(actions, self.substeps, axis=-2)
+        w = self.command_weights()
+        k = actions.shape[-2] - hist
+        windows = np.stack([actions[..., i:i + hist + 1, :] for i in range(k)], axis=-3)  # (..., K, H+1, 12)
+        cmd = np.einsum("sh,...khj->...ksj", w, windows)
+        return cmd.reshape(*actions.shape[:-2], k * self.substeps, NUM_JOINTS)
+
+    # ----- steps 2-4: the torque a joint receives -------------------------------------------
+    def torque(self, command: np.ndarray, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """Joint torque (..., 12), N m, from the command and the TRUE joint angle and velocity."""
+        if self.mode == "torque":
+            return self.strength * np.clip(command, -self.limit, self.limit)
+        e = command - (q + self.offset)
+        if self.deadband.any():
+            e = np.sign(e) * np.maximum(np.abs(e) - self.deadband, 0.0)
+        return self.strength * np.clip(self.kp * e - self.kd * qd, -self.limit, self.limit)

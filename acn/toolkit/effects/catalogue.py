@@ -1,0 +1,110 @@
+"""The catalogue of physical effects. Names and parameter names are a public contract.
+
+==================  =========================================  ==================================
+name                parameters                                 realistic (12 kg quadruped)
+==================  =========================================  ==================================
+joint_damping       value N m s/rad (per joint)                0.1 - 1
+joint_friction      value N m, Coulomb (per joint)             0.1 - 0.6
+armature            value kg m^2, reflected rotor (per joint)  0.005 - 0.03
+actuator_latency    seconds                                    0.002 - 0.025
+motor_strength      scale, produced / commanded (per joint)    0.7 - 0.95
+torque_limit        value N m (per joint)                      12 - 25 (below the commanded peaks)
+pd_gains            kp_scale, kd_scale (per joint)             0.6 - 0.9, 0.5 - 0.9
+payload             mass kg, com_x, com_y, com_z m (trunk)     0.5 - 4 kg, COM within +-5 cm
+ground_friction     value (foot-ground sliding coefficient)    0.2 - 0.8
+encoder_offset      value rad (per joint)                      +-(0.02 - 0.15)
+backlash            value rad, dead band width (per joint)     0.01 - 0.05
+==================  =========================================  ==================================
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from acn.errors import UserError
+from acn.toolkit.effects.effect import Effect, Parameter
+from acn.toolkit.robot import ModelParams
+from acn.toolkit.state import NUM_JOINTS
+
+
+def _setter(field: str, parameter: str = "value"):
+    """A modifier writing one joint parameter into the per-joint ``ModelParams`` field."""
+    def modify(params: ModelParams, values) -> None:
+        setattr(params, field, np.asarray(values[parameter], float) * np.ones(NUM_JOINTS))
+    return modify
+
+
+def _latency(params: ModelParams, values) -> None:
+    params.latency = float(values["seconds"])
+
+
+def _pd_gains(params: ModelParams, values) -> None:
+    params.kp_scale = np.asarray(values["kp_scale"], float) * np.ones(NUM_JOINTS)
+    params.kd_scale = np.asarray(values["kd_scale"], float) * np.ones(NUM_JOINTS)
+
+
+def _payload(params: ModelParams, values) -> None:
+    params.payload_mass = float(values["mass"])
+    params.payload_com = np.array([values["com_x"], values["com_y"], values["com_z"]], dtype=float)
+
+
+def _ground_friction(params: ModelParams, values) -> None:
+    params.ground_friction = float(values["value"])
+
+
+CATALOGUE: dict[str, Effect] = {e.name: e for e in (
+    Effect("joint_damping", "viscous friction in the joints, tau = -value * qdot",
+           (Parameter("value", "N m s/rad", 0.0, 0.0, 5.0, per_joint=True, realistic=(0.1, 1.0)),),
+           _setter("joint_damping"), mujoco="joint.damping", pybullet="changeDynamics(jointDamping)"),
+    Effect("joint_friction", "Coulomb friction in the joints, |tau| <= value opposing motion",
+           (Parameter("value", "N m", 0.0, 0.0, 3.0, per_joint=True, realistic=(0.1, 0.6)),),
+           _setter("joint_friction"), mujoco="joint.frictionloss",
+           pybullet="velocity motor with target 0 and max force = value"),
+    Effect("armature", "reflected rotor inertia added to each joint",
+           (Parameter("value", "kg m^2", 0.0, 0.0, 0.1, per_joint=True, realistic=(0.005, 0.03)),),
+           _setter("armature"), mujoco="joint.armature",
+           pybullet="a rotor disc added to the child link's inertia in the loaded URDF"),
+    Effect("actuator_latency", "commands reach the motors late (transport and driver delay)",
+           (Parameter("seconds", "s", 0.0, 0.0, 0.06, realistic=(0.002, 0.025)),),
+           _latency, mujoco="per-physics-step control sequence (rollout control), the law of acn.toolkit.actuation",
+           pybullet="the same control sequence"),
+    Effect("motor_strength", "the motors produce a fraction of the commanded torque",
+           (Parameter("scale", "1", 1.0, 0.2, 1.5, per_joint=True, realistic=(0.7, 0.95)),),
+           _setter("motor_strength", "scale"), mujoco="actuator gain, bias and force range scaled",
+           pybullet="torque scaled in the control law"),
+    Effect("torque_limit", "the motor drivers saturate at a lower torque",
+           (Parameter("value", "N m", 33.5, 1.0, 200.0, per_joint=True, realistic=(12.0, 25.0),
+                      from_control="torque_limit"),),
+           _setter("torque_limit"), mujoco="actuator forcerange", pybullet="clip in the control law"),
+    Effect("pd_gains", "the joint PD runs with other gains than commanded",
+           (Parameter("kp_scale", "1", 1.0, 0.2, 3.0, per_joint=True, realistic=(0.6, 0.9)),
+            Parameter("kd_scale", "1", 1.0, 0.0, 5.0, per_joint=True, realistic=(0.5, 0.9))),
+           _pd_gains, mujoco="actuator gainprm / biasprm", pybullet="gains of the control law"),
+    Effect("payload", "a mass rigidly attached to the trunk",
+           (Parameter("mass", "kg", 0.0, 0.0, 20.0, realistic=(0.5, 4.0)),
+            Parameter("com_x", "m", 0.0, -0.3, 0.3, realistic=(0.0, 0.05), signed=True),
+            Parameter("com_y", "m", 0.0, -0.3, 0.3, realistic=(0.0, 0.05), signed=True),
+            Parameter("com_z", "m", 0.0, -0.3, 0.3, realistic=(0.0, 0.05), signed=True)),
+           _payload, mujoco="trunk mass, ipos and inertia combined with a point mass",
+           pybullet="trunk inertial of the loaded URDF combined with a point mass"),
+    Effect("ground_friction", "foot-ground sliding friction differs",
+           (Parameter("value", "1", 1.0, 0.05, 2.0, realistic=(0.2, 0.8)),),
+           _ground_friction, mujoco="foot and floor geom friction", pybullet="lateralFriction of the feet"),
+    Effect("encoder_offset", "joint encoders read q + value; the PD acts on the reading",
+           (Parameter("value", "rad", 0.0, -0.5, 0.5, per_joint=True, realistic=(0.02, 0.15), signed=True),),
+           _setter("encoder_offset"), mujoco="actuator bias (-kp offset) and the state's reading",
+           pybullet="the control law's reading and the state's reading"),
+    Effect("backlash", "a dead band in the joint position loop (gear play)",
+           (Parameter("value", "rad", 0.0, 0.0, 0.3, per_joint=True, realistic=(0.01, 0.05)),),
+           _setter("backlash"), mujoco="motor actuators, the dead-band law computed each physics step",
+           pybullet="dead band in the control law"),
+)}
+EFFECT_NAMES: tuple[str, ...] = tuple(CATALOGUE)
+
+
+def get_effect(name: str) -> Effect:
+    """The catalogue effect called ``name``; a one-line error listing the names otherwise."""
+    try:
+        return CATALOGUE[name]
+    except KeyError:
+        raise UserError(f"unknown effect {name!r}; the catalogue: {', '.join(EFFECT_NAMES)}") from None

@@ -1,0 +1,187 @@
+"""Batch re-simulation from recorded states: the engine behind diagnosis, labels and oracles.
+
+Given models (``SimConfig`` each: control settings + physical parameters), recorded states
+s_t, the actions a_t .. a_{t+K-1} and the actions before t (a model with latency still applies
+them early in the step), ``Resimulator.run`` returns the predicted s_{t+1} .. s_{t+K} and the
+mean applied torque of every control step, row by row. Each row may use another model, so a
+batch can hold many parameter values (finite differences, fits) at once.
+
+- MuJoCo: ``mujoco.rollout`` on a thread pool, each model compiled once. The physics state
+  comes from the state vector without MjData (``PhysicsLayout``); the control sequence per
+  physics step carries the latency (``Actuation.commands``). A law MuJoCo cannot express
+  (a dead band) is evaluated in numpy between single-step rollouts.
+- PyBullet: one simulator per model, ``set_state`` / ``step`` row by row.
+
+Predicted contacts are not simulated state: they come back NaN.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from acn.toolkit.actuation import Actuation
+from acn.toolkit.backends import SimConfig, SimulationDiverged, make_backend
+from acn.toolkit.state import ACTION_DIM, SLICES, STATE_DIM
+
+MAX_BATCH_FLOATS = 4_000_000  # rollout output held at once (~32 MB)
+
+
+@dataclass
+class Prediction:
+    """What a re-simulation predicts for N rows and K control steps."""
+
+    state: np.ndarray     # (N, K, 43) s_{t+1} .. s_{t+K}; contacts NaN; NaN rows where diverged
+    effort: np.ndarray    # (N, K, 12) mean applied joint torque over each control step, N m
+    diverged: np.ndarray  # (N,) bool: the simulation blew up (non-finite or absurd state)
+
+
+def _history_window(actions: np.ndarray, previous: np.ndarray | None, need: int) -> np.ndarray:
+    """(N, need + K, 12): ``need`` previous actions then the K actions. Unknown earlier actions
+    are taken equal to the oldest one known (or to the first action)."""
+    n = len(actions)
+    prev = np.empty((n, 0, ACTION_DIM)) if previous is None else np.asarray(previous, float).reshape(n, -1, ACTION_DIM)
+    if prev.shape[1] < need:
+        fill = prev[:, :1] if prev.shape[1] else actions[:, :1]
+        prev = np.concatenate([np.repeat(fill, need - prev.shape[1], axis=1), prev], axis=1)
+    return np.concatenate([prev[:, prev.shape[1] - need:], actions], axis=1)
+
+
+class Resimulator:
+    """Re-simulates recorded states under one or several models of one backend."""
+
+    def __init__(self, backend: str, configs: SimConfig | Sequence[SimConfig], threads: int | None = None) -> None:
+        self.backend = backend
+        self.configs = [configs] if isinstance(configs, SimConfig) else list(configs)
+        if not self.configs:
+            raise ValueError("a Resimulator needs at least one model")
+        base = self.configs[0]
+        for c in self.configs:
+            if (c.physics_dt, c.substeps, c.action_mode) != (base.physics_dt, base.substeps, base.action_mode):
+                raise ValueError("all models of one Resimulator share physics_dt, substeps and action mode")
+        self.actuation = [Actuation.from_config(c) for c in self.configs]
+        self.threads = threads or max(1, min(os.cpu_count() or 1, 8))
+        self._models: list | None = None   # MuJoCo models, compiled on first use
+        self._sims: dict[int, object] = {}  # PyBullet simulators, built on first use
+
+    @property
+    def control_dt(self) -> float:
+        return self.configs[0].control_dt
+
+    def run(self, states: np.ndarray, actions: np.ndarray, previous: np.ndarray | None = None,
+            model: np.ndarray | int | None = None) -> Prediction:
+        """Predict K control steps from each of N states.
+
+        ``states`` (N, 43) recorded s_t; ``actions`` (N, K, 12) or (N, 12) the actions from t on;
+        ``previous`` (N, P, 12) the actions before t, oldest first (optional); ``model`` (N,)
+        index into the models per row (default: model 0 for every row).
+        """
+        states = np.asarray(states, dtype=np.float64)
+        actions = np.asarray(actions, dtype=np.float64)
+        if actions.ndim == 2:
+            actions = actions[:, None, :]
+        n = len(states)
+        if states.shape != (n, STATE_DIM) or actions.shape[0] != n or actions.shape[2] != ACTION_DIM:
+            raise ValueError(f"states (N, {STATE_DIM}) and actions (N, K, {ACTION_DIM}) must match; "
+                             f"got {states.shape} and {actions.shape}")
+        index = np.zeros(n, dtype=int) if model is None else np.broadcast_to(np.asarray(model, dtype=int), (n,))
+        out = Prediction(np.full((n, actions.shape[1], STATE_DIM), np.nan),
+                         np.full((n, actions.shape[1], ACTION_DIM), np.nan), np.zeros(n, dtype=bool))
+        if n == 0:
+            return out
+        run = self._run_mujoco if self.backend == "mujoco" else self._run_backend
+        for m in np.unique(index):
+            rows = np.flatnonzero(index == m)
+            window = _history_window(actions[rows], None if previous is None else np.asarray(previous)[rows],
+                                     self.actuation[m].history)
+            run(int(m), rows, states[rows], window, out)
+        return out
+
+    # ----- MuJoCo: mujoco.rollout ------------------------------------------------------------
+    def _compile(self) -> None:
+        import mujoco
+
+        from acn.toolkit.backends.mujoco_backend import PhysicsLayout, build_spec
+
+        self._models = [build_spec(c).compile() for c in self.configs]
+        self._layout = PhysicsLayout(self._models[0])
+        self._datas = [mujoco.MjData(self._models[0]) for _ in range(self.threads)]
+
+    def _run_mujoco(self, m: int, rows: np.ndarray, states: np.ndarray, window: np.ndarray, out: Prediction) -> None:
+        import mujoco.rollout
+
+        if self._models is None:
+            self._compile()
+        act, model, layout = self.actuation[m], self._models[m], self._layout
+        k = window.shape[1] - act.history
+        sub = act.substeps
+        chunk = max(1, MAX_BATCH_FLOATS // (k * sub * (layout.size + ACTION_DIM)))
+        with mujoco.rollout.Rollout(nthread=self.threads) as pool:
+            for lo in range(0, len(rows), chunk):
+                hi = min(lo + chunk, len(rows))
+                phys0 = layout.to_physics(states[lo:hi], act.offset)
+                commands = act.commands(window[lo:hi])  # (n, K * sub, 12)
+                if act.native:
+                    phys, torque = pool.rollout([model] * (hi - lo), self._datas, phys0, commands)
+                else:
+                    phys, torque = self._step_by_step(pool, model, act, phys0, commands)
+                self._store(rows[lo:hi], phys0, phys, torque, act, k, out)
+
+    def _step_by_step(self, pool, model, act: Actuation, phys0: np.ndarray, commands: np.ndarray):
+        """One physics step per rollout call, the torque law in numpy in between."""
+        n, steps = commands.shape[:2]
+        layout = self._layout
+        phys = np.empty((n, steps, layout.size))
+        torque = np.empty((n, steps, ACTION_DIM))
+        x = phys0
+        for j in range(steps):
+            q = x[:, 1 + layout.qadr]
+            qd = x[:, 1 + layout.nq + layout.dadr]
+            ctrl = act.torque(commands[:, j], q, qd)
+            st, sens = pool.rollout([model] * n, self._datas, x, ctrl[:, None, :])
+            phys[:, j], torque[:, j] = st[:, -1], sens[:, -1]
+            x = st[:, -1]
+        return phys, torque
+
+    def _store(self, rows, phys0, phys, torque, act: Actuation, k: int, out: Prediction) -> None:
+        sub = act.substeps
+        ends = phys[:, sub - 1::sub]                               # (n, K, size)
+        starts = np.concatenate([phys0[:, None], ends[:, :-1]], axis=1)
+        n = len(rows)
+        pred = self._layout.to_states(ends.reshape(n * k, -1), starts.reshape(n * k, -1), act.offset,
+                                      self.control_dt).reshape(n, k, STATE_DIM)
+        eff = torque.reshape(n, k, sub, ACTION_DIM).mean(axis=2)
+        bad = ~np.isfinite(pred[..., : SLICES["contact"].start]).all(axis=(1, 2))
+        bad |= np.abs(pred[:, :, SLICES["joint_vel"]]).max(axis=(1, 2), initial=0.0) > 500.0
+        pred[bad], eff[bad] = np.nan, np.nan
+        out.state[rows], out.effort[rows], out.diverged[rows] = pred, eff, bad
+
+    # ----- any backend: set_state / step -------------------------------------------------------
+    def _run_backend(self, m: int, rows: np.ndarray, states: np.ndarray, window: np.ndarray, out: Prediction) -> None:
+        if m not in self._sims:
+            self._sims[m] = make_backend(self.backend, self.configs[m])
+        sim, hist = self._sims[m], self.actuation[m].history
+        for i, r in enumerate(rows):
+            sim.set_state(states[i], previous_actions=window[i, :hist])
+            try:
+                for j, a in enumerate(window[i, hist:]):
+                    out.effort[r, j] = sim.step(a)
+                    out.state[r, j] = sim.get_state()
+            except SimulationDiverged:
+                out.state[r], out.effort[r], out.diverged[r] = np.nan, np.nan, True
+                continue
+            out.state[r, :, SLICES["contact"]] = np.nan
+
+    def close(self) -> None:
+        for sim in self._sims.values():
+            sim.close()
+        self._sims.clear()
+
+    def __enter__(self) -> "Resimulator":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
