@@ -131,7 +131,7 @@ def record(cfg: CollectConfig, out: str | Path, workers: int = 1, overwrite: boo
                 on_episode(ep)
     except KeyboardInterrupt:
         _stop(procs)
-        path = _commit_quietly(writer) if writer.num_episodes else None
+        path = _commit_quietly(writer, cfg) if writer.num_episodes else None
         if path is None:
             writer.abort()
         raise Interrupted(path, writer.num_episodes) from None
@@ -143,7 +143,7 @@ def record(cfg: CollectConfig, out: str | Path, workers: int = 1, overwrite: boo
         signal.signal(signal.SIGTERM, previous)
     for p in procs:
         p.join()
-    return _commit_quietly(writer)
+    return _commit_quietly(writer, cfg)
 
 
 def _stop(procs: list) -> None:
@@ -154,12 +154,20 @@ def _stop(procs: list) -> None:
         p.join()
 
 
-def _commit_quietly(writer: DatasetWriter) -> Path:
-    """Commit with SIGINT/SIGTERM held off, so a second Ctrl-C cannot tear the rename."""
+def _commit_quietly(writer: DatasetWriter, cfg: CollectConfig) -> Path:
+    """Commit with SIGINT/SIGTERM held off, so a second Ctrl-C cannot tear the rename; then the
+    answer to hidden effects goes beside the dataset (a stale answer from an overwritten one goes)."""
+    from acn.toolkit.hidden import answer_path, write_answer
+
     old_int = signal.signal(signal.SIGINT, signal.SIG_IGN)
     old_term = signal.signal(signal.SIGTERM, signal.SIG_IGN)
     try:
-        return writer.commit()
+        path = writer.commit()
+        if cfg.hidden_effects:
+            write_answer(path, cfg.hidden_effects, cfg.seed)
+        else:
+            answer_path(path).unlink(missing_ok=True)
+        return path
     finally:
         signal.signal(signal.SIGINT, old_int)
         signal.signal(signal.SIGTERM, old_term)

@@ -62,10 +62,22 @@ class CollectConfig:
     sim: SimConfig = field(default_factory=SimConfig)
     init_noise: InitNoise = field(default_factory=InitNoise)
     corrector: str | None = None  # directory of a frozen corrector applied in the target
+    # Physical effects applied to the SOURCE (the measured robot) and never written into the
+    # dataset: measurements with a hidden effect, for testing a diagnosis (``acn.toolkit.hidden``).
+    hidden_effects: list = field(default_factory=list)  # [AppliedEffect]
 
     @property
     def paired(self) -> bool:
         return self.target is not None
+
+    @property
+    def source_sim(self) -> SimConfig:
+        """The source simulator's config: ``sim`` with the hidden effects written in."""
+        if not self.hidden_effects:
+            return self.sim
+        from acn.toolkit.effects import Model
+
+        return Model(self.source, list(self.hidden_effects)).sim_config(self.sim)
 
     @property
     def steps_per_episode(self) -> int:
@@ -149,7 +161,7 @@ class PairedRollout:
         policy) run instead of the built-in ``config.policy``, which then only labels the data."""
         config.validate(builtin_policy=policy is None)
         self.config = config
-        self.source = make_backend(config.source, config.sim)
+        self.source = make_backend(config.source, config.source_sim)
         self.target = make_backend(config.target, config.sim) if config.target else None
         self.policy = make_policy(config.policy) if policy is None else policy
         self.corrector = corrector

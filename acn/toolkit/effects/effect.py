@@ -58,6 +58,12 @@ class Effect:
     def per_joint(self) -> bool:
         return any(p.per_joint for p in self.parameters)
 
+    def __reduce__(self):
+        """Worker processes receive an effect by its catalogue name (its modifier is a closure)."""
+        from acn.toolkit.effects.catalogue import get_effect
+
+        return (get_effect, (self.name,))
+
     def parameter(self, name: str) -> Parameter:
         for p in self.parameters:
             if p.name == name:

@@ -1,0 +1,175 @@
+"""Measurements: recorded transitions of one robot (or one simulator) in the documented schema.
+
+``load_measurements(path, side)`` reads any of our datasets through ``LeRobotDataset``: an
+``acn-import``-ed robot log, an unpaired ``acn-collect`` dataset, or either side of a paired
+one. Channels a log lacks are NaN and listed in ``missing``. The control settings the robot
+ran with (rates, gains, torque limit, action mode) come from the dataset's ``acn`` metadata,
+so a diagnosis needs nothing else.
+
+Rows of one episode are consecutive control steps: row t + 1's state is row t's next state.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from acn.datasets import schema
+from acn.datasets.reader import read_info
+from acn.errors import UserError
+from acn.toolkit.backends import SimConfig
+from acn.toolkit.state import ACTION_DIM, GROUPS, SLICES, STATE_DIM, STATE_NAMES
+
+os.environ.setdefault("HF_HUB_OFFLINE", "1")
+
+SIDES = ("source", "target")
+REQUIRED_GROUPS = ("joint_pos",)  # with the actions: the least a diagnosis can work from
+
+
+@dataclass
+class Measurements:
+    """N transitions (float64); ``state`` and ``next_state`` hold NaN in missing channels."""
+
+    state: np.ndarray        # (N, 43) s_t
+    action: np.ndarray       # (N, 12) a_t
+    next_state: np.ndarray   # (N, 43) s_{t+1}
+    effort: np.ndarray       # (N, 12) applied joint torque, N m (NaN if not logged)
+    episode: np.ndarray      # (N,) int, rows of one episode are consecutive control steps
+    frame: np.ndarray        # (N,) int, control step within the episode
+    control: SimConfig       # the settings the robot was driven with (nominal physical parameters)
+    info: dict               # the dataset's ``acn`` block
+    description: str = ""
+    missing: list[str] = field(default_factory=list)   # channels the log lacks
+
+    def __len__(self) -> int:
+        return len(self.state)
+
+    @property
+    def available(self) -> np.ndarray:
+        """(43,) bool: channels that were measured."""
+        return np.array([n not in self.missing for n in STATE_NAMES])
+
+    def subset(self, rows: np.ndarray) -> "Measurements":
+        return Measurements(self.state[rows], self.action[rows], self.next_state[rows], self.effort[rows],
+                            self.episode[rows], self.frame[rows], self.control, self.info, self.description,
+                            self.missing)
+
+    def previous_actions(self, rows: np.ndarray, count: int) -> np.ndarray:
+        """(len(rows), count, 12): the actions of the ``count`` steps before each row, oldest first.
+
+        Before an episode's first row its first action is repeated. Call it on whole
+        measurements (rows of an episode consecutive), not on a ``subset``.
+        """
+        out = np.empty((len(rows), count, ACTION_DIM))
+        for j in range(count):  # j = 0 is the oldest: ``count`` steps back
+            back = count - j
+            src = np.maximum(rows - np.minimum(self.frame[rows], back), 0)  # clamped to the episode's start
+            out[:, j] = self.action[src]
+        return out
+
+    def windows(self, horizon: int) -> np.ndarray:
+        """Rows t from which ``horizon`` consecutive transitions of one episode exist."""
+        n = len(self)
+        if horizon <= 1:
+            return np.arange(n)
+        end = np.arange(n) + horizon - 1
+        ok = end < n
+        ok[ok] = (self.episode[end[ok]] == self.episode[ok]) & (self.frame[end[ok]] - self.frame[ok] == horizon - 1)
+        return np.flatnonzero(ok)
+
+
+def load_measurements(path: str | Path, side: str = "source") -> Measurements:
+    """Read measurements from a dataset (see module docstring); ``side`` for paired datasets."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    if side not in SIDES:
+        raise UserError(f"side must be one of {', '.join(SIDES)}, got {side!r}")
+    path = Path(path)
+    info = read_info(path)
+    acn = info[schema.ACN_KEY]
+    if acn.get("state_names") != list(STATE_NAMES):
+        raise UserError(f"{path} has different state channels than this toolkit")
+    if side == "target" and not acn.get("paired"):
+        raise UserError(f"{path} is not paired: it has no target side")
+    try:
+        ds = LeRobotDataset(f"acn/{path.name}", root=path)
+    except Exception as e:  # noqa: BLE001 - lerobot raises many kinds on a broken dataset
+        raise UserError(f"cannot read {path} as a LeRobot dataset: {e}".splitlines()[0]) from None
+    key = (lambda k: k) if side == "source" else schema.target_key
+    cols = ds.hf_dataset.with_format("numpy")[:]
+    get = lambda k: np.asarray(cols[k], dtype=np.float64)  # noqa: E731
+    state, action, next_state = get(key(schema.STATE)), get(key(schema.ACTION)), get(key(schema.NEXT_STATE))
+    effort = get(key(schema.EFFORT)) if key(schema.EFFORT) in cols else np.full_like(action, np.nan)
+    missing = list(acn.get("missing_channels", []))
+    lacking = [g for g in REQUIRED_GROUPS if all(n in missing for n in GROUPS[g])]
+    if lacking:
+        raise UserError(f"{path} has no {' or '.join(lacking)} channels: a diagnosis needs joint positions and actions")
+    if not np.isfinite(action).all():
+        raise UserError(f"{path} has non-finite actions")
+    control = SimConfig(physics_dt=acn["physics_dt"], substeps=acn["substeps"], action_mode=acn["action_mode"],
+                        kp=acn["kp"], kd=acn["kd"], torque_limit=acn["torque_limit"])
+    who = (acn.get(side) or {}).get("simulator") or side
+    return Measurements(state, action, next_state, effort, np.asarray(cols["episode_index"], dtype=np.int64),
+                        np.asarray(cols["frame_index"], dtype=np.int64), control, acn,
+                        description=f"{path.name} ({who}{', ' + side + ' side' if acn.get('paired') else ''})",
+                        missing=missing)
+
+
+def fill_derived(m: Measurements) -> tuple[Measurements, list[str]]:
+    """Measurements whose missing VELOCITY channels are derived from positions (central
+    differences along each episode, one-sided at its ends, angles wrapped), so that a simulator
+    can start from them. Returns the filled copy and the names of the derived channels.
+    Missing positions cannot be derived: a ``UserError`` names them.
+    """
+    from acn.toolkit.rotations import quat_to_matrix, rpy_to_quat
+    from acn.toolkit.state import wrap_angle
+
+    absent = [n for g in ("base_pos", "base_rpy", "joint_pos") for n in GROUPS[g] if n in m.missing]
+    if absent:
+        raise UserError(f"re-simulating needs the full pose; the measurements lack {', '.join(absent)}")
+    derived = [n for g in ("base_linvel", "base_angvel", "joint_vel") for n in GROUPS[g] if n in m.missing]
+    if not derived:
+        return m, []
+    dt = m.control.control_dt
+    n = len(m)
+    linked = np.zeros(n, dtype=bool)  # row t - 1 is the step before row t
+    linked[1:] = (m.episode[1:] == m.episode[:-1]) & (m.frame[1:] == m.frame[:-1] + 1)
+    before = np.where(linked[:, None], np.roll(m.state, 1, axis=0), m.state)
+    span = np.where(linked, 2.0, 1.0)[:, None] * dt
+
+    def rates(a: np.ndarray, b: np.ndarray, dt_: np.ndarray, at: np.ndarray) -> dict[str, np.ndarray]:
+        d = (b - a) / dt_
+        d[:, SLICES["base_rpy"]] = wrap_angle(b[:, SLICES["base_rpy"]] - a[:, SLICES["base_rpy"]]) / dt_
+        rot = np.moveaxis(np.array(quat_to_matrix(np.array(rpy_to_quat(at[:, SLICES["base_rpy"]].T)))), -1, 0)
+        return {"joint_vel": d[:, SLICES["joint_pos"]],
+                "base_linvel": np.einsum("nji,nj->ni", rot, d[:, SLICES["base_pos"]]),
+                "base_angvel": _rpy_rate_to_body(at[:, SLICES["base_rpy"]], d[:, SLICES["base_rpy"]])}
+
+    now = rates(before, m.next_state, span, m.state)
+    nxt = rates(m.state, m.next_state, np.full((n, 1), dt), m.next_state)  # backward, at t + 1
+    follows = np.zeros(n, dtype=bool)  # row t + 1 exists: its central value is the better s_{t+1}
+    follows[:-1] = linked[1:]
+    state, next_state = m.state.copy(), m.next_state.copy()
+    for g in ("joint_vel", "base_linvel", "base_angvel"):
+        for k, name in enumerate(GROUPS[g]):
+            if name in derived:
+                c = SLICES[g].start + k
+                state[:, c] = now[g][:, k]
+                next_state[:, c] = np.where(follows, np.roll(now[g][:, k], -1), nxt[g][:, k])
+    out = Measurements(state, m.action, next_state, m.effort, m.episode, m.frame, m.control, m.info,
+                       m.description, [c for c in m.missing if c not in derived])
+    return out, derived
+
+
+def _rpy_rate_to_body(rpy: np.ndarray, rate: np.ndarray) -> np.ndarray:
+    """Body-frame angular velocity from extrinsic-XYZ Euler angles and their rates (N, 3)."""
+    r, p, _ = rpy.T
+    dr, dp, dy = rate.T
+    # omega_body for R = Rz(y) Ry(p) Rx(r)
+    wx = dr - np.sin(p) * dy
+    wy = np.cos(r) * dp + np.sin(r) * np.cos(p) * dy
+    wz = -np.sin(r) * dp + np.cos(r) * np.cos(p) * dy
+    return np.stack([wx, wy, wz], axis=1)
