@@ -206,6 +206,122 @@ def _print_fit_summary(m: dict, path: Path) -> None:
     print(f"wrote the frozen corrector to {path} (load: acn.models.Corrector.load('{path}'))")
 
 
+# ----------------------------------------------------------------------------- acn-ppo
+def ppo_parser() -> argparse.ArgumentParser:
+    from acn.models.acn import VARIANTS
+    from acn.models.ppo import PPOConfig
+
+    d = PPOConfig()
+    p = _Parser(prog="acn-ppo", description="Train a walking policy with PPO in PyBullet (a residual on the trot) "
+                "and evaluate it in MuJoCo with and without the frozen corrector pi_corr(s) = pi(s) + F(s, pi(s)), "
+                "which is applied in the TARGET (MuJoCo) only; every --refit-every episodes F is refitted on paired "
+                "data of the current policy (the paper's Algorithm 2). Or, with --eval, reload and evaluate.")
+    mode = p.add_mutually_exclusive_group(required=True)
+    mode.add_argument("--timesteps", type=_positive_int, help="train for this many PyBullet control steps in all")
+    mode.add_argument("--eval", type=Path, metavar="POLICY", help="evaluate a saved policy directory (DIR/policy)")
+    p.add_argument("--out", type=Path, help="run directory to create (training)")
+    p.add_argument("--corrector", type=Path, default=None,
+                   help="frozen corrector directory (acn-fit output); training: F until the first refit")
+    p.add_argument("--refit-every", type=_nonneg_int, default=d.refit_every, help="episodes; 0: never refit")
+    p.add_argument("--eval-every", type=_nonneg_int, default=d.eval_every, help="episodes; 0: only at the end")
+    p.add_argument("--eval-episodes", type=_nonneg_int, default=d.eval_episodes, help="per evaluation in training")
+    p.add_argument("--final-eval-episodes", type=_positive_int, default=d.final_eval_episodes)
+    p.add_argument("--variant", default=d.corrector_variant, choices=VARIANTS, help="acn-fit variant for refits")
+    p.add_argument("--envs", type=_positive_int, default=d.n_envs, help="PyBullet environment processes")
+    p.add_argument("--seed", type=_nonneg_int, default=d.seed)
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="any other PPOConfig field, e.g. --set n_steps=512 --set hidden=64,64")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint")
+    p.add_argument("--overwrite", action="store_true", help="replace an earlier run in --out")
+    p.add_argument("--episodes", type=_positive_int, default=20, help="--eval: episodes per simulator")
+    p.add_argument("--seconds", type=_positive_float, default=None, help="--eval: episode limit (default: the policy's)")
+    p.add_argument("--oracle-episodes", type=_nonneg_int, default=0,
+                   help="--eval: also the same-state oracle bound on this many episodes (optional, slow)")
+    return p
+
+
+def ppo_main(argv: list[str] | None = None) -> int:
+    args = ppo_parser().parse_args(argv)
+
+    def body() -> int:
+        if args.eval is not None:
+            return _ppo_eval(args)
+        from dataclasses import replace
+
+        from tqdm import tqdm
+
+        from acn.models.ppo import PPOConfig, Trainer, format_table, parse_overrides
+
+        if args.out is None:
+            raise UserError("--timesteps needs --out DIR")
+        if args.corrector is not None and not args.corrector.is_dir():
+            raise UserError(f"corrector directory {args.corrector} does not exist")
+        cfg = replace(PPOConfig(), timesteps=args.timesteps, refit_every=args.refit_every, eval_every=args.eval_every,
+                      eval_episodes=args.eval_episodes, final_eval_episodes=args.final_eval_episodes,
+                      corrector_variant=args.variant, n_envs=args.envs, seed=args.seed)
+        cfg = parse_overrides(cfg, args.set)
+        trainer = Trainer(cfg, args.out, corrector_dir=args.corrector, resume=args.resume, overwrite=args.overwrite,
+                          log=lambda line: tqdm.write(line, file=sys.stderr))
+        m = trainer.run()
+        t = m["training"]
+        print(format_table(m["final_evaluation"]))
+        print(f"trained {t['timesteps']} steps ({t['episodes']} episodes) in {t['wall_seconds_this_session']:.0f} s; "
+              f"mean training return of the last 100 episodes {t['train_return_last_100_episodes']:.1f}")
+        print(f"corrector frozen (tensor sha256 unchanged while in use): {m['corrector_frozen']}")
+        out = args.out.absolute()
+        print(f"wrote {out / 'policy'} (safetensors + JSON), {out / 'corrector'}, {out / 'metrics.json'}, "
+              f"{out / 'curves.png'}; {out / 'checkpoint'} resumes training (--resume)")
+        print(f"evaluate again: acn-ppo --eval {out / 'policy'} --corrector {out / 'corrector'}")
+        return 0
+
+    return _run("acn-ppo", body)
+
+
+def _ppo_eval(args: argparse.Namespace) -> int:
+    if args.out is not None or args.resume or args.set:
+        raise UserError("--eval takes --corrector, --episodes, --seconds and --seed only")
+    if not args.eval.is_dir():
+        raise UserError(f"policy directory {args.eval} does not exist")
+    if args.corrector is not None and not args.corrector.is_dir():
+        raise UserError(f"corrector directory {args.corrector} does not exist")
+    from acn.models.ppo import evaluate_saved, format_table
+
+    ev = evaluate_saved(args.eval, args.corrector, args.episodes, args.seconds, args.seed, args.oracle_episodes)
+    print(format_table(ev))
+    return 0
+
+
+# ----------------------------------------------------------------------------- acn-view
+def view_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="acn-view", description="Show a dataset in the Rerun viewer: the A1 in 3D per trajectory, "
+                "joint angles, divergence per channel group and stance/swing, one tab per episode. Opens the "
+                "viewer when there is a display and no --save; otherwise writes a .rrd.")
+    p.add_argument("dataset", type=Path, help="dataset directory written by acn-collect (paired or not)")
+    p.add_argument("--episodes", default=None, metavar="0,3,...", help="episodes to show (default: all)")
+    p.add_argument("--corrector", type=Path, default=None,
+                   help="frozen corrector directory (acn-fit output): also show the target re-simulated with it")
+    p.add_argument("--model", type=Path, default=None, metavar="MODEL.json",
+                   help="acn-diagnose model: measured against the model's prediction, residuals per joint")
+    p.add_argument("--save", type=Path, default=None, metavar="OUT.rrd", help="write a .rrd instead of opening a viewer")
+    return p
+
+
+def view_main(argv: list[str] | None = None) -> int:
+    args = view_parser().parse_args(argv)
+
+    def body() -> int:
+        from acn.viz.view import ViewConfig, view
+
+        path = view(ViewConfig(dataset=args.dataset, episodes=args.episodes, corrector=args.corrector,
+                               model=args.model, save=args.save))
+        if path is not None:
+            print(f"wrote {path}; open it with:")
+            print(f"rerun {path}")
+        return 0
+
+    return _run("acn-view", body)
+
+
 if __name__ == "__main__":  # pragma: no cover
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
     sys.exit(collect_main())
