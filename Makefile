@@ -25,6 +25,7 @@ demo: $(STAMP)
 	$(BIN)/acn-fit $(OUT)/trot_pb_mj --variant mujoco-jacobian --epochs 10 --out $(OUT)/acn_mujoco_jacobian --overwrite
 	@echo "dataset: $(OUT)/trot_pb_mj (LeRobotDataset('acn/trot_pb_mj', root='$(OUT)/trot_pb_mj'), HF_HUB_OFFLINE=1)"
 	@echo "correctors: $(OUT)/acn_paper, $(OUT)/acn_mujoco_jacobian (acn.models.Corrector.load(DIR)); metrics.json inside"
+	$(BIN)/acn-view $(OUT)/trot_pb_mj --corrector $(OUT)/acn_mujoco_jacobian --save $(OUT)/trot_pb_mj.rrd
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
@@ -32,6 +33,7 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python benchmarks/collect.py
 	$(BIN)/python benchmarks/fit.py
+	$(BIN)/python benchmarks/view.py
 	$(BIN)/python benchmarks/ppo.py
 
 clean:

@@ -127,3 +127,59 @@ def load_paired(paths: list[str | Path]) -> PairedTransitions:
         episode_offset = int(episode.max()) + 1 if len(episode) else episode_offset
     cat = [np.concatenate([p[i] for p in parts]) for i in range(7)]
     return PairedTransitions(*cat, info=first, sources=[str(p) for p in paths], skipped_nonfinite=skipped)
+
+
+@dataclass
+class RecordedFrames:
+    """Every row of one dataset, paired or not (measurements only), in file order (float64).
+
+    ``target_*`` are None for an unpaired dataset. Rows keep non-finite values (a viewer shows
+    them as gaps); ``episode`` and ``frame`` are the dataset's ``episode_index`` / ``frame_index``.
+    """
+
+    path: Path
+    info: dict                # the dataset's ``acn`` block
+    fps: int
+    episode: np.ndarray       # (N,) int
+    frame: np.ndarray         # (N,) int, index within the episode
+    timestamp: np.ndarray     # (N,) s from the episode start
+    state: np.ndarray         # (N, 43) s_t of the source (or the measured robot)
+    action: np.ndarray        # (N, 12) a_t
+    target_state: np.ndarray | None = None   # (N, 43)
+    target_action: np.ndarray | None = None  # (N, 12)
+
+    @property
+    def paired(self) -> bool:
+        return self.target_state is not None
+
+    @property
+    def episodes(self) -> list[int]:
+        return sorted({int(e) for e in np.unique(self.episode)})
+
+    def rows(self, episode: int) -> np.ndarray:
+        """Row indices of one episode, in frame order."""
+        idx = np.flatnonzero(self.episode == episode)
+        return idx[np.argsort(self.frame[idx], kind="stable")]
+
+
+def load_frames(path: str | Path) -> RecordedFrames:
+    """Read one ``acn-collect`` dataset, paired or unpaired, through ``LeRobotDataset``."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    path = Path(path)
+    info = read_info(path)
+    acn = info[schema.ACN_KEY]
+    if acn.get("state_names") != list(STATE_NAMES):
+        raise UserError(f"{path} has different state channels than this toolkit")
+    try:
+        ds = LeRobotDataset(f"acn/{path.name}", root=path)
+    except Exception as e:  # noqa: BLE001 - lerobot raises many kinds on a broken dataset
+        raise UserError(f"cannot read {path} as a LeRobot dataset: {e}".splitlines()[0]) from None
+    paired = bool(acn.get("paired"))
+    keys = [schema.STATE, schema.ACTION] + ([schema.target_key(schema.STATE), schema.target_key(schema.ACTION)]
+                                            if paired else [])
+    cols = ds.hf_dataset.with_format("numpy", columns=keys + ["episode_index", "frame_index", "timestamp"])[:]
+    arrays = [np.asarray(cols[k], dtype=np.float64) for k in keys]
+    return RecordedFrames(path, acn, int(ds.meta.fps), np.asarray(cols["episode_index"], dtype=np.int64),
+                          np.asarray(cols["frame_index"], dtype=np.int64),
+                          np.asarray(cols["timestamp"], dtype=np.float64), *arrays)
