@@ -92,12 +92,14 @@ class Resimulator:
                          np.full((n, actions.shape[1], ACTION_DIM), np.nan), np.zeros(n, dtype=bool))
         if n == 0:
             return out
-        run = self._run_mujoco if self.backend == "mujoco" else self._run_backend
+        if self.backend == "mujoco":
+            self._run_mujoco(index, states, actions, previous, out)
+            return out
         for m in np.unique(index):
             rows = np.flatnonzero(index == m)
             window = _history_window(actions[rows], None if previous is None else np.asarray(previous)[rows],
                                      self.actuation[m].history)
-            run(int(m), rows, states[rows], window, out)
+            self._run_backend(int(m), rows, states[rows], window, out)
         return out
 
     # ----- MuJoCo: mujoco.rollout ------------------------------------------------------------
@@ -110,48 +112,60 @@ class Resimulator:
         self._layout = PhysicsLayout(self._models[0])
         self._datas = [mujoco.MjData(self._models[0]) for _ in range(self.threads)]
 
-    def _run_mujoco(self, m: int, rows: np.ndarray, states: np.ndarray, window: np.ndarray, out: Prediction) -> None:
+    def _run_mujoco(self, index: np.ndarray, states: np.ndarray, actions: np.ndarray, previous, out: Prediction) -> None:
+        """All rows in as few rollout calls as memory allows, each row with its own model."""
         import mujoco.rollout
 
         if self._models is None:
             self._compile()
-        act, model, layout = self.actuation[m], self._models[m], self._layout
-        k = window.shape[1] - act.history
-        sub = act.substeps
+        layout, sub, k = self._layout, self.configs[0].substeps, actions.shape[1]
+        offset = np.stack([a.offset for a in self.actuation])[index]
+        commands = np.empty((len(states), k * sub, ACTION_DIM))
+        for m in np.unique(index):  # per-physics-step commands carry each model's latency
+            rows = np.flatnonzero(index == m)
+            act = self.actuation[m]
+            window = _history_window(actions[rows], None if previous is None else np.asarray(previous)[rows],
+                                     act.history)
+            commands[rows] = act.commands(window)
+        native = np.array([a.native for a in self.actuation])[index]
         chunk = max(1, MAX_BATCH_FLOATS // (k * sub * (layout.size + ACTION_DIM)))
         with mujoco.rollout.Rollout(nthread=self.threads) as pool:
-            for lo in range(0, len(rows), chunk):
-                hi = min(lo + chunk, len(rows))
-                phys0 = layout.to_physics(states[lo:hi], act.offset)
-                commands = act.commands(window[lo:hi])  # (n, K * sub, 12)
-                if act.native:
-                    phys, torque = pool.rollout([model] * (hi - lo), self._datas, phys0, commands)
+            for lo in range(0, len(states), chunk):
+                sel = slice(lo, min(lo + chunk, len(states)))
+                phys0 = layout.to_physics(states[sel], offset[sel])
+                models = [self._models[i] for i in index[sel]]
+                if native[sel].all():
+                    phys, torque = pool.rollout(models, self._datas, phys0, commands[sel])
                 else:
-                    phys, torque = self._step_by_step(pool, model, act, phys0, commands)
-                self._store(rows[lo:hi], phys0, phys, torque, act, k, out)
+                    phys, torque = self._step_by_step(pool, models, index[sel], phys0, commands[sel])
+                self._store(np.arange(len(states))[sel], phys0, phys, torque, offset[sel], k, out)
 
-    def _step_by_step(self, pool, model, act: Actuation, phys0: np.ndarray, commands: np.ndarray):
-        """One physics step per rollout call, the torque law in numpy in between."""
+    def _step_by_step(self, pool, models: list, index: np.ndarray, phys0: np.ndarray, commands: np.ndarray):
+        """One physics step per rollout call; rows whose law MuJoCo cannot express get their
+        torque from ``Actuation.torque`` in numpy in between (the others their command)."""
         n, steps = commands.shape[:2]
         layout = self._layout
         phys = np.empty((n, steps, layout.size))
         torque = np.empty((n, steps, ACTION_DIM))
         x = phys0
+        python_law = [np.flatnonzero(index == m) for m in np.unique(index) if not self.actuation[m].native]
         for j in range(steps):
-            q = x[:, 1 + layout.qadr]
-            qd = x[:, 1 + layout.nq + layout.dadr]
-            ctrl = act.torque(commands[:, j], q, qd)
-            st, sens = pool.rollout([model] * n, self._datas, x, ctrl[:, None, :])
+            ctrl = commands[:, j].copy()
+            for rows in python_law:
+                act = self.actuation[index[rows[0]]]
+                ctrl[rows] = act.torque(commands[rows, j], x[rows][:, 1 + layout.qadr],
+                                        x[rows][:, 1 + layout.nq + layout.dadr])
+            st, sens = pool.rollout(models, self._datas, x, ctrl[:, None, :])
             phys[:, j], torque[:, j] = st[:, -1], sens[:, -1]
             x = st[:, -1]
         return phys, torque
 
-    def _store(self, rows, phys0, phys, torque, act: Actuation, k: int, out: Prediction) -> None:
-        sub = act.substeps
+    def _store(self, rows, phys0, phys, torque, offset: np.ndarray, k: int, out: Prediction) -> None:
+        sub = self.configs[0].substeps
         ends = phys[:, sub - 1::sub]                               # (n, K, size)
         starts = np.concatenate([phys0[:, None], ends[:, :-1]], axis=1)
         n = len(rows)
-        pred = self._layout.to_states(ends.reshape(n * k, -1), starts.reshape(n * k, -1), act.offset,
+        pred = self._layout.to_states(ends.reshape(n * k, -1), starts.reshape(n * k, -1), np.repeat(offset, k, axis=0),
                                       self.control_dt).reshape(n, k, STATE_DIM)
         eff = torque.reshape(n, k, sub, ACTION_DIM).mean(axis=2)
         bad = ~np.isfinite(pred[..., : SLICES["contact"].start]).all(axis=(1, 2))

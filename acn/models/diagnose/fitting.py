@@ -1,0 +1,236 @@
+"""Fit one effect's parameters to measurements: least squares on re-simulated one-step
+predictions (``mujoco.minimize.least_squares``), confidence intervals from
+``mujoco.sysid.calculate_intervals``.
+
+A joint parameter is fitted at a GRANULARITY: one number shared by all joints (``shared``),
+one per joint type (``type``: hip, thigh, calf), one per leg (``leg``) or one per joint
+(``joint``). The optimiser works on parameters divided by their typical magnitude, so one
+finite-difference step (10 % of it) suits every unit. Every point the optimiser asks for in one
+iteration is re-simulated in one batch (one model per point).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from mujoco import minimize
+
+from acn.models.diagnose.problem import Problem
+from acn.toolkit.effects import Effect, Model, Parameter, Values
+from acn.toolkit.resim import Resimulator
+from acn.toolkit.state import FOOT_NAMES, JOINT_NAMES, NUM_JOINTS
+
+GRANULARITIES = ("shared", "type", "leg", "joint")
+_GROUP_OF_JOINT = {
+    "shared": np.zeros(NUM_JOINTS, dtype=int),
+    "type": np.tile(np.arange(3), 4),
+    "leg": np.repeat(np.arange(4), 3),
+    "joint": np.arange(NUM_JOINTS),
+}
+GROUP_LABELS = {"shared": ("all",), "type": ("hip", "thigh", "calf"), "leg": FOOT_NAMES, "joint": JOINT_NAMES}
+DIVERGED_RESIDUAL = 10.0  # normalised residual given to a prediction that blew up
+FD_STEP = 0.1             # finite-difference step, as a fraction of a parameter's typical magnitude
+
+
+class SoftL1(minimize.Norm):
+    """Pseudo-Huber norm sum delta^2 (sqrt(1 + (r / delta)^2) - 1): quadratic for small residuals,
+    linear for large ones. A few rows whose contacts switch under a small parameter change jump
+    by a lot; this keeps them from dominating the fit (the judgement stays on squared error)."""
+
+    def __init__(self, delta: float) -> None:
+        self.delta = float(delta)
+
+    def value(self, r: np.ndarray) -> np.float64:
+        d = self.delta
+        return np.float64(np.sum(d * d * (np.sqrt(1.0 + (r / d) ** 2) - 1.0)))
+
+    def grad_hess(self, r: np.ndarray, proj: np.ndarray):
+        w = 1.0 / np.sqrt(1.0 + (r / self.delta) ** 2)
+        return proj.T @ (r * w), proj.T @ (proj * (w ** 3))
+
+
+def default_granularity(effect: Effect) -> str:
+    """How finely a candidate is first fitted: offsets differ joint by joint, the rest is shared."""
+    return "joint" if effect.name == "encoder_offset" else "shared"
+
+
+@dataclass
+class FreeParameters:
+    """The vector an optimiser moves, and how it maps onto an effect's values."""
+
+    effect: Effect
+    granularity: str
+    base: Values  # values of the parameters before the fit (nominal, or the model's current ones)
+
+    def _size(self, p: Parameter) -> int:
+        return int(_GROUP_OF_JOINT[self.granularity].max()) + 1 if p.per_joint else 1
+
+    @property
+    def names(self) -> list[str]:
+        """``value`` for a shared parameter, ``value[thigh]``, ``value[FR]``, ``value[FR_hip]`` otherwise."""
+        out = []
+        for p in self.effect.parameters:
+            n = self._size(p)
+            out += [p.name] if n == 1 else [f"{p.name}[{g}]" for g in GROUP_LABELS[self.granularity]]
+        return out
+
+    def scale(self) -> np.ndarray:
+        """Typical magnitude per free parameter (optimiser units)."""
+        out = []
+        for p in self.effect.parameters:
+            typical = max(abs(p.realistic[1]) if p.realistic else 0.0, abs(p.nominal) * 0.1, 1e-3)
+            if p.from_control:
+                typical = max(typical, 5.0)
+            out += [typical] * self._size(p)
+        return np.array(out)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        lo, hi = [], []
+        for p in self.effect.parameters:
+            lo += [p.lower] * self._size(p)
+            hi += [p.upper] * self._size(p)
+        return np.array(lo), np.array(hi)
+
+    def vector(self, values: Values) -> np.ndarray:
+        """Group means of ``values`` as a free-parameter vector."""
+        out = []
+        group = _GROUP_OF_JOINT[self.granularity]
+        for p in self.effect.parameters:
+            v = np.asarray(values[p.name], float)
+            out += [float(v[group == g].mean()) for g in range(self._size(p))] if p.per_joint else [float(v)]
+        return np.array(out)
+
+    def values(self, x: np.ndarray) -> Values:
+        out: Values = {}
+        i = 0
+        group = _GROUP_OF_JOINT[self.granularity]
+        for p in self.effect.parameters:
+            n = self._size(p)
+            out[p.name] = x[i:i + n][group] if p.per_joint else float(x[i])
+            i += n
+        return out
+
+
+@dataclass
+class EffectFit:
+    """One fitted effect."""
+
+    effect: Effect
+    granularity: str
+    values: Values
+    names: list[str]
+    x: np.ndarray            # fitted free parameters
+    stderr: np.ndarray       # their standard errors (from the 95 % intervals)
+    model: Model             # the base model with this effect added
+    cost: float              # mean squared normalised residual on the fit rows
+    evaluations: int
+
+
+class _OutOfBudget(Exception):
+    pass
+
+
+class Objective:
+    """z (n, k) -> stacked normalised one-step residuals (rows * C, k), z = free parameters / scale.
+
+    All k points are re-simulated in one batch. It counts model evaluations, stops the
+    optimiser past ``budget`` of them, and remembers the best point it saw under ``norm``.
+    """
+
+    def __init__(self, problem: Problem, base: Model, free: FreeParameters, rows: np.ndarray, budget: int) -> None:
+        d = problem.data
+        self.problem, self.base, self.free, self.rows = problem, base, free, rows
+        self.scale = free.scale()
+        self.states, self.actions = d.state[rows], d.action[rows]
+        self.previous = d.previous_actions(rows, problem.history)
+        self.budget, self.evaluations = budget, 0
+        self.norm: minimize.Norm | None = None
+        self.best_cost, self.best_z = np.inf, None
+
+    def __call__(self, z: np.ndarray) -> np.ndarray:
+        z = z.reshape(len(self.scale), -1)
+        k = z.shape[1]
+        if self.evaluations + k > self.budget:
+            raise _OutOfBudget
+        configs = [self.base.with_effect(self.free.effect, self.free.values(z[:, j] * self.scale))
+                   .sim_config(self.problem.control) for j in range(k)]
+        n = len(self.rows)
+        with Resimulator(self.problem.backend, configs, threads=self.problem.threads) as sim:
+            pred = sim.run(np.tile(self.states, (k, 1)), np.tile(self.actions, (k, 1)),
+                           np.tile(self.previous, (k, 1, 1)), model=np.repeat(np.arange(k), n))
+        self.evaluations += k
+        r = self.problem.residual(pred.state[:, 0], np.tile(self.rows, k))
+        r = np.where(np.isfinite(r), r, DIVERGED_RESIDUAL).reshape(k, -1).T / np.sqrt(n)
+        if self.norm is not None:
+            for j in range(k):
+                cost = float(self.norm.value(r[:, j]))
+                if cost < self.best_cost:
+                    self.best_cost, self.best_z = cost, z[:, j].copy()
+        return r.astype(np.float64)
+
+
+def fit_effect(problem: Problem, base: Model, effect: Effect, granularity: str, rows: np.ndarray,
+               start: Values | None = None, max_iter: int = 12) -> EffectFit:
+    """Robust least-squares fit of ``effect`` added to ``base`` on ``rows`` (module docstring).
+
+    A coarse scan picks the start; ``mujoco.minimize.least_squares`` (pseudo-Huber norm) refines
+    it within ``max_iter`` iterations and an evaluation budget; the best point seen is kept.
+    """
+    current = next((t.values for t in base.effects if t.name == effect.name), None)
+    free = FreeParameters(effect, granularity, current or effect.nominal(problem.control))
+    lo, hi = free.bounds()
+    n_free = len(free.names)
+    objective = Objective(problem, base, free, rows, budget=8 + max_iter * (n_free + 3))
+    scale = objective.scale
+    z0 = np.clip(free.vector(start or free.base) / scale, lo / scale, hi / scale)
+    z0, r0 = _scan_start(objective, z0, free, lo / scale, hi / scale)
+    objective.norm = SoftL1(max(3.0 * 1.4826 * float(np.median(np.abs(r0))), 1e-9))  # 3 robust sigmas
+    objective.best_cost, objective.best_z = float(objective.norm.value(r0)), z0
+    try:
+        minimize.least_squares(z0, objective, bounds=[lo / scale, hi / scale], norm=objective.norm, eps=FD_STEP,
+                               max_iter=max_iter, verbose=0, xtol=1e-3, gtol=1e-10, mu_factor=10.0 ** 0.5)
+    except _OutOfBudget:
+        pass
+    z = objective.best_z
+    objective.budget = np.inf  # the Jacobian for the intervals is always computed
+    r = objective(z.reshape(-1, 1))[:, 0]
+    jac, _ = minimize.jacobian_fd(objective, z.reshape(-1, 1), r.reshape(-1, 1), np.float64(FD_STEP), 0,
+                                  [lo.reshape(-1, 1) / scale[:, None], hi.reshape(-1, 1) / scale[:, None]])
+    stderr = _stderr(r, jac) * scale
+    x = z * scale
+    values = free.values(x)
+    return EffectFit(effect, granularity, values, free.names, x, stderr, base.with_effect(effect, values),
+                     cost=float(r @ r), evaluations=objective.evaluations)
+
+
+def _scan_start(residual, z0: np.ndarray, free: FreeParameters, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """A coarse scan along the realistic direction (one batch) so the optimiser starts near the basin.
+
+    Parameters without a one-sided realistic range (signed ones) stay where they are.
+    """
+    target: list[float | None] = []
+    for p in free.effect.parameters:
+        mid = float(np.mean(p.realistic)) if p.realistic and not p.signed else None
+        target += [mid] * free._size(p)
+    scale = free.scale()
+    direction = np.array([(t / s if t is not None else z) for t, s, z in zip(target, scale, z0)]) - z0
+    if not np.any(direction):
+        return z0, residual(z0.reshape(-1, 1))[:, 0]
+    steps = np.array([0.0, 0.25, 0.5, 1.0, 1.6, 2.5])
+    points = np.clip(z0[:, None] + direction[:, None] * steps[None], lo[:, None], hi[:, None])
+    r = residual(points)
+    best = int(np.argmin(np.sum(np.abs(r), axis=0)))
+    return points[:, best], r[:, best]
+
+
+def _stderr(r: np.ndarray, jac: np.ndarray) -> np.ndarray:
+    """Standard errors from the Jacobian at the optimum (``mujoco.sysid.calculate_intervals``,
+    95 % half-widths, divided by the t quantile). They treat residuals as independent, which
+    rows of one trajectory are not: read them as a lower bound on the uncertainty."""
+    from mujoco import sysid
+    from scipy.special import stdtrit
+
+    _, intervals = sysid.calculate_intervals([r], jac)
+    dof = max(1, r.size - jac.shape[1])
+    return np.asarray(intervals) / stdtrit(dof, 0.975)

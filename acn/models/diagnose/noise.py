@@ -1,0 +1,83 @@
+"""The noise floor: the part of the one-step error that no function of the recorded state and
+actions predicts.
+
+A model error caused by a missing physical effect is a function of what the robot was doing
+(state, actions, action history); measurement noise is not. Ridge regressions learn the
+normalised one-step residual on the fit rows from a library of candidate terms (PySINDy
+style):
+
+- per joint, one regression shared by the 12 joints (so it sees 12 samples per row), each term
+  with its own coefficient per joint type: the joint's angle, speed, |speed|, speed^2,
+  sign-like tanh(speed / 0.2 rad/s), PD error, action change, the foot's contact and its
+  products with the PD error and speed, and a constant per joint;
+- for the trunk channels, one regression on the whole state, actions and action changes.
+
+What they leave on held-out rows is the floor (per channel, never above the error itself).
+A linear library cannot represent every effect, so the floor is an upper bound on sensor
+noise; the pipeline lowers it to what the best fitted candidate achieves.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from acn.datasets.measurements import Measurements
+from acn.toolkit.state import JOINT_NAMES, NUM_JOINTS, SLICES, STATE_NAMES
+
+_SKIP = ("base_pos_x", "base_pos_y", "base_yaw")  # where the robot is and faces carries no dynamics
+RIDGE = 1e-3  # regularisation, relative to the mean feature variance
+
+
+def joint_library(d: Measurements, rows: np.ndarray) -> np.ndarray:
+    """(N, 12, F) candidate terms per joint (module docstring)."""
+    s, a = d.state[rows], d.action[rows]
+    prev = d.previous_actions(rows, 1)[:, 0]
+    q, qd = s[:, SLICES["joint_pos"]], s[:, SLICES["joint_vel"]]
+    contact = np.nan_to_num(np.repeat(s[:, SLICES["contact"]], 3, axis=1))
+    err = a - q
+    terms = np.stack([q, qd, np.abs(qd), qd * np.abs(qd), np.tanh(qd / 0.2), err, a - prev, contact,
+                      contact * err, contact * qd], axis=2)                          # (N, 12, T)
+    kind = np.tile(np.eye(3), (4, 1))                                                # joint -> type
+    by_type = (terms[:, :, :, None] * kind[None, :, None, :]).reshape(len(rows), NUM_JOINTS, -1)
+    bias = np.broadcast_to(np.eye(NUM_JOINTS), (len(rows), NUM_JOINTS, NUM_JOINTS))
+    return np.nan_to_num(np.concatenate([by_type, bias], axis=2))
+
+
+def body_library(d: Measurements, rows: np.ndarray) -> np.ndarray:
+    """(N, F): [1, state without x, y, yaw, a_t, a_t - a_{t-1}]."""
+    keep = [i for i, n in enumerate(STATE_NAMES) if n not in _SKIP]
+    a = d.action[rows]
+    prev = d.previous_actions(rows, 1)[:, 0]
+    return np.nan_to_num(np.concatenate([np.ones((len(rows), 1)), d.state[rows][:, keep], a, a - prev], axis=1))
+
+
+def _ridge_left(x_fit: np.ndarray, y_fit: np.ndarray, x_held: np.ndarray, y_held: np.ndarray) -> np.ndarray:
+    """Squared held-out residual (N_held, outputs) after a ridge regression fitted on the fit rows."""
+    mu, sd = x_fit.mean(0), x_fit.std(0)
+    sd = np.where(sd > 1e-12, sd, 1.0)
+    xf, xh = (x_fit - mu) / sd, (x_held - mu) / sd
+    xf, xh = np.hstack([xf, np.ones((len(xf), 1))]), np.hstack([xh, np.ones((len(xh), 1))])
+    gram = xf.T @ xf
+    coef = np.linalg.solve(gram + RIDGE * len(xf) * np.eye(len(gram)), xf.T @ y_fit)
+    return (xh @ coef - y_held) ** 2
+
+
+def noise_floor(d: Measurements, channel_names: list[str], fit_rows: np.ndarray, r_fit: np.ndarray,
+                held_rows: np.ndarray, r_held: np.ndarray) -> np.ndarray:
+    """(C,) held-out MSE per compared channel left after the regressions (module docstring)."""
+    left = r_held ** 2
+    per_joint = [[channel_names.index(c) for c in (f"{j}_pos", f"{j}_vel") if c in channel_names]
+                 for j in JOINT_NAMES]
+    if all(per_joint) and len({len(c) for c in per_joint}) == 1:
+        cols = np.array(per_joint)                                     # (12, outputs)
+        xf, xh = joint_library(d, fit_rows), joint_library(d, held_rows)
+        yf, yh = r_fit[:, cols], r_held[:, cols]                       # (N, 12, outputs)
+        out = _ridge_left(xf.reshape(-1, xf.shape[2]), yf.reshape(-1, yf.shape[2]),
+                          xh.reshape(-1, xh.shape[2]), yh.reshape(-1, yh.shape[2]))
+        left[:, cols] = out.reshape(yh.shape)
+    joint_channels = {c for cols in per_joint for c in cols}
+    body = [i for i in range(len(channel_names)) if i not in joint_channels]
+    if body:
+        left[:, body] = _ridge_left(body_library(d, fit_rows), r_fit[:, body], body_library(d, held_rows),
+                                    r_held[:, body])
+    return np.minimum(left.mean(0), (r_held ** 2).mean(0))

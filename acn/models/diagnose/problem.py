@@ -1,0 +1,149 @@
+"""The diagnosis problem: measurements, which channels to compare, how to scale them, which
+rows fit and which rows judge, and one call that re-simulates rows under a model.
+
+Errors are normalised per channel so that channels in different units can be ranked: a
+channel's error at horizon k is divided by the spread (std) of its measured k-step change, so
+1.0 means "as wrong as predicting that nothing moves". Rows are split by episode (by time
+blocks when there are too few episodes) into FIT rows, on which parameters are estimated, and
+HELD-OUT rows, on which every reported error and every explained share is computed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from acn.datasets.measurements import Measurements, fill_derived
+from acn.datasets.reader import state_difference
+from acn.errors import UserError
+from acn.toolkit.backends import SimConfig
+from acn.toolkit.effects import EFFECT_NAMES, Model
+from acn.toolkit.resim import Resimulator
+from acn.toolkit.state import GROUPS, SLICES, STATE_NAMES
+
+# Channel groups a model is compared on (contacts are binary readings, not predicted).
+COMPARED_GROUPS = ("base_pos", "base_rpy", "joint_pos", "base_linvel", "base_angvel", "joint_vel", "imu_acc")
+MAX_LATENCY = 0.06  # s, the catalogue's upper bound: how many previous actions a row carries
+
+
+@dataclass
+class DiagnoseConfig:
+    """Every knob of ``acn-diagnose``; row counts trade time for statistical power."""
+
+    horizons: tuple[int, ...] = (1, 5, 25)   # control steps of open-loop prediction
+    compare_rows: int = 20_000     # held-out rows re-simulated for the one-step error table
+    rollout_starts: int = 200      # held-out starts per longer horizon
+    rank_rows: int = 400           # fit rows used to fit every candidate
+    rank_iterations: int = 5       # optimiser iterations per candidate when ranking
+    judge_rows: int = 1_500        # held-out rows that judge a candidate
+    fit_rows: int = 1_500          # fit rows for an added effect's final fit
+    candidates: tuple[str, ...] = EFFECT_NAMES
+    auto_max: int = 4              # at most this many effects added by --auto
+    threads: int | None = None
+    seed: int = 0
+
+    def validate(self) -> None:
+        if not self.horizons or min(self.horizons) < 1:
+            raise UserError("horizons must be whole numbers >= 1")
+        for name in ("compare_rows", "rollout_starts", "rank_rows", "judge_rows", "fit_rows"):
+            if getattr(self, name) < 8:
+                raise UserError(f"{name} must be >= 8")
+
+
+@dataclass
+class Problem:
+    """Measurements prepared for re-simulation (see module docstring)."""
+
+    data: Measurements
+    control: SimConfig
+    backend: str
+    channels: np.ndarray            # indices (into the state) of compared channels
+    scale: dict[int, np.ndarray]    # horizon -> (C,) spread of the measured change
+    fit_rows: np.ndarray            # rows whose transitions estimate parameters
+    held_rows: np.ndarray           # rows on which errors are reported
+    history: int                    # previous actions carried per row
+    derived: list[str] = field(default_factory=list)
+    threads: int | None = None
+    seed: int = 0
+
+    @property
+    def channel_names(self) -> list[str]:
+        return [STATE_NAMES[c] for c in self.channels]
+
+    def group_of_channel(self) -> list[str]:
+        return [next(g for g in GROUPS if n in GROUPS[g]) for n in self.channel_names]
+
+    # ----- re-simulation -----------------------------------------------------------------
+    def predict(self, configs: SimConfig | list[SimConfig], rows: np.ndarray, horizon: int = 1,
+                model_of_row: np.ndarray | None = None, corrector=None) -> np.ndarray:
+        """Predicted s_{t+horizon} (N, 43) from measured s_t and the measured actions."""
+        d = self.data
+        steps = rows[:, None] + np.arange(horizon)[None]
+        actions = d.action[steps]
+        if corrector is not None and horizon == 1:
+            actions[:, 0] = corrector.correct(d.state[rows], actions[:, 0])
+        with Resimulator(self.backend, configs, threads=self.threads) as sim:
+            pred = sim.run(d.state[rows], actions, d.previous_actions(rows, self.history), model=model_of_row)
+        return pred.state[:, -1]
+
+    def measured(self, rows: np.ndarray, horizon: int = 1) -> np.ndarray:
+        return self.data.next_state[rows + horizon - 1]
+
+    def residual(self, predicted: np.ndarray, rows: np.ndarray, horizon: int = 1) -> np.ndarray:
+        """Normalised (measured - predicted) over the compared channels, (N, C); NaN if diverged."""
+        d = state_difference(self.measured(rows, horizon), predicted)[:, self.channels]
+        return d / self.scale[horizon]
+
+    def residual_of(self, configs, rows: np.ndarray, horizon: int = 1, model_of_row=None) -> np.ndarray:
+        return self.residual(self.predict(configs, rows, horizon, model_of_row), rows, horizon)
+
+    def sample(self, rows: np.ndarray, count: int, salt: int = 0) -> np.ndarray:
+        """At most ``count`` of ``rows``, spread evenly over them (deterministic)."""
+        if len(rows) <= count:
+            return rows
+        rng = np.random.default_rng([self.seed, salt])
+        return np.sort(rng.choice(rows, count, replace=False))
+
+
+def prepare(data: Measurements, model: Model, cfg: DiagnoseConfig) -> Problem:
+    """Check the measurements, derive missing velocities, choose channels, scales and the split."""
+    cfg.validate()
+    data, derived = fill_derived(data)
+    finite = np.isfinite(data.state[:, _dynamic()]).all(1) & np.isfinite(data.next_state[:, _dynamic()]).all(1)
+    if finite.sum() < 16:
+        raise UserError(f"{data.description}: fewer than 16 complete transitions to compare")
+    available = data.available
+    channels = np.array([STATE_NAMES.index(n) for g in COMPARED_GROUPS for n in GROUPS[g]
+                         if available[STATE_NAMES.index(n)] and n not in derived])
+    scale = {}
+    for h in sorted(set(cfg.horizons) | {1}):
+        starts = data.windows(h)
+        if len(starts) < 8:
+            raise UserError(f"horizon {h}: fewer than 8 runs of {h} consecutive steps in the measurements")
+        change = state_difference(data.next_state[starts + h - 1], data.state[starts])[:, channels]
+        spread = np.nanstd(change, axis=0)
+        scale[h] = np.where(spread > 1e-9, spread, 1.0)
+    held = _held_out_mask(data, cfg.seed)
+    ok = finite & np.isfinite(data.next_state[:, channels]).all(1)
+    history = int(math.ceil(MAX_LATENCY / data.control.control_dt)) + 1
+    return Problem(data=data, control=data.control, backend=model.backend, channels=channels, scale=scale,
+                   fit_rows=np.flatnonzero(ok & ~held), held_rows=np.flatnonzero(ok & held), history=history,
+                   derived=derived, threads=cfg.threads, seed=cfg.seed)
+
+
+def _dynamic() -> np.ndarray:
+    return np.concatenate([np.arange(SLICES[g].start, SLICES[g].stop)
+                           for g in ("base_pos", "base_rpy", "joint_pos", "base_linvel", "base_angvel", "joint_vel")])
+
+
+def _held_out_mask(data: Measurements, seed: int) -> np.ndarray:
+    """Half the episodes held out; with fewer than 4 episodes, alternate blocks of 2 s instead."""
+    episodes = np.unique(data.episode)
+    if len(episodes) >= 4:
+        rng = np.random.default_rng(seed)
+        held = rng.permutation(episodes)[: len(episodes) // 2]
+        return np.isin(data.episode, held)
+    block = max(1, int(round(2.0 / data.control.control_dt)))
+    return (data.frame // block) % 2 == 1

@@ -1,0 +1,211 @@
+"""A ``Diagnosis`` as a user reads it: JSON (``--json``), terminal tables, an HTML report.
+
+JSON keys (the machine-readable contract):
+
+- ``verdict``: ``"none"``, ``"effect"`` or ``"unexplained"``; ``reason`` in words;
+- ``headline_error``: its definition and the value before and after the added effects;
+- ``error``: horizon (control steps, as a string) -> channel group -> normalised RMS;
+- ``noise_floor``: MSE, share of the error, per channel group;
+- ``where``: the breakdown (``where`` module) with its ``summary``;
+- ``ranking``: best first, each ``name``, ``params`` (as in a model file), ``granularity``,
+  ``free_parameters`` (value and ``stderr`` each), ``explained`` (share 0..1 of the error
+  above the noise floor), ``removed`` (share of the whole error), ``z``, ``significant``,
+  ``score``;
+- ``added`` (with ``--add`` / ``--auto``): in order, ``name``, ``params``, ``error_before`` and
+  ``error_after`` (horizon -> group), ``headline_before``, ``headline_after``, ``explained``;
+- ``model`` and ``final_model``: the model files before and after.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+from pathlib import Path
+
+import numpy as np
+
+from acn.models.diagnose.add import Added, explained_share
+from acn.models.diagnose.compare import Comparison, group_errors
+from acn.models.diagnose.pipeline import Diagnosis
+from acn.models.diagnose.rank import Candidate
+
+HEADLINE = ("one-step teacher-forced prediction error on held-out rows: RMS over every compared channel of "
+            "(measured - predicted) / spread of the measured one-step change (1 = as wrong as predicting no motion)")
+
+
+def _errors(c: Comparison) -> dict:
+    return {str(h): {g: round(v, 6) for g, v in e.items()} for h, e in sorted(c.error.items())}
+
+
+def _free(fit) -> list[dict]:
+    return [{"name": n, "value": float(v), "stderr": float(e)} for n, v, e in zip(fit.names, fit.x, fit.stderr)]
+
+
+def _params_text(fit) -> str:
+    return ", ".join(f"{f['name']}={f['value']:.4g} +- {f['stderr']:.2g}" for f in _free(fit))
+
+
+def _candidate(c: Candidate) -> dict:
+    j = c.judgement
+    return {"name": c.name, "params": c.fit.effect.to_json(c.fit.values), "granularity": c.fit.granularity,
+            "free_parameters": _free(c.fit), "explained": round(j.explained, 4), "removed": round(j.removed, 4),
+            "z": round(j.z, 2), "significant": j.significant, "score": round(c.score, 4)}
+
+
+def _added(a: Added, floor_mse: float) -> dict:
+    return {"name": a.name, "params": a.fit.effect.to_json(a.fit.values), "granularity": a.fit.granularity,
+            "free_parameters": _free(a.fit), "error_before": _errors(a.before), "error_after": _errors(a.after),
+            "headline_before": a.before.headline, "headline_after": a.after.headline,
+            "explained": explained_share(a.before.headline ** 2, a.after.headline ** 2, floor_mse)}
+
+
+def to_json(d: Diagnosis) -> dict:
+    p = d.problem
+    groups = group_errors(p, np.sqrt(d.floor)[None, :])
+    return {
+        "verdict": d.verdict, "reason": d.reason, "measurements": d.measurements,
+        "rows": {"transitions": len(p.data), "fit": len(p.fit_rows), "held_out": len(p.held_rows),
+                 "compared": len(d.before.rows), "diverged": d.before.diverged},
+        "derived_channels": p.derived,
+        "headline_error": {"definition": HEADLINE, "before": d.before.headline, "after": d.final.headline},
+        "error": _errors(d.before),
+        "noise_floor": {"mse": d.floor_mse, "share_of_error": 1.0 - d.structured_share,
+                        "by_group": {g: round(v, 6) for g, v in groups.items()}},
+        "where": d.where,
+        "ranking": [_candidate(c) for c in d.ranking],
+        "added": [_added(a, d.floor_mse) for a in d.added],
+        "model": d.before.model.to_json(), "final_model": d.final.model.to_json(),
+        "seconds": d.seconds,
+    }
+
+
+def write_json(d: Diagnosis, path: str | Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.parent / f".{path.name}.partial"
+    tmp.write_text(json.dumps(to_json(d), indent=2, default=_plain) + "\n")
+    tmp.replace(path)
+    return path
+
+
+def _plain(o):
+    if isinstance(o, (np.floating, np.integer, np.bool_)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(type(o))
+
+
+# ----- terminal -------------------------------------------------------------------------------
+def _table(header: list[str], rows: list[list[str]]) -> str:
+    widths = [max(len(str(x)) for x in col) for col in zip(header, *rows)]
+    line = lambda r: "  ".join(str(x).ljust(w) for x, w in zip(r, widths))  # noqa: E731
+    return "\n".join([line(header), line(["-" * w for w in widths]), *map(line, rows)])
+
+
+def error_table(before: Comparison, after: Comparison | None = None) -> str:
+    hs = sorted(before.error)
+    groups = list(before.error[1])
+    head = ["group"] + [f"{h} step{'s' if h > 1 else ''}" for h in hs]
+    rows = []
+    for g in groups:
+        cells = []
+        for h in hs:
+            b = before.error[h].get(g, float("nan"))
+            cells.append(f"{b:.4f}" if after is None else f"{b:.4f} -> {after.error[h].get(g, float('nan')):.4f}")
+        rows.append([g] + cells)
+    return _table(head, rows)
+
+
+def terminal(d: Diagnosis) -> str:
+    out = [f"measurements: {d.measurements}; model: {d.before.model.describe()}",
+           f"headline error (one step, normalised): {d.before.headline:.4f}; noise floor {1 - d.structured_share:.0%} "
+           "of it", "", "error per channel group and horizon (normalised RMS, held-out rows):", error_table(d.before),
+           "", "where: " + d.where["summary"], "", "candidate effects, best first:"]
+    rows = []
+    for c in d.ranking:
+        j = c.judgement
+        params = _params_text(c.fit)
+        rows.append([c.name, c.fit.granularity, f"{j.explained:.0%}", f"{j.removed:+.1%}", f"{j.z:.1f}",
+                     "yes" if j.significant else "no", params])
+    out.append(_table(["effect", "fitted as", "explained", "error removed", "z", "significant", "parameters"], rows))
+    for a in d.added:
+        out += ["", f"added {a.name} ({a.fit.granularity}): {a.fit.effect.to_json(a.fit.values)}",
+                f"headline {a.before.headline:.4f} -> {a.after.headline:.4f}", error_table(a.before, a.after)]
+    out += ["", f"verdict: {d.verdict} ({d.reason})"]
+    return "\n".join(out)
+
+
+# ----- HTML -----------------------------------------------------------------------------------
+def write_html(d: Diagnosis, path: str | Path) -> Path:
+    """A self-contained report (plotly.js inline): error breakdown, ranking, error falling."""
+    import plotly.graph_objects as go
+    import plotly.io as pio
+
+    figs = []
+    hs = sorted(d.before.error)
+    fig = go.Figure([go.Bar(name=f"{h} step{'s' if h > 1 else ''}", x=list(d.before.error[h]),
+                            y=list(d.before.error[h].values())) for h in hs])
+    fig.update_layout(title="Error per channel group and horizon (normalised RMS, held-out rows)", barmode="group",
+                      yaxis_title="normalised RMS")
+    figs.append(fig)
+    w = d.where
+    fig = go.Figure(go.Bar(x=list(w["by_joint"]), y=list(w["by_joint"].values())))
+    fig.update_layout(title="One-step error by joint (position and velocity channels)", yaxis_title="normalised RMS")
+    figs.append(fig)
+    if "all" in w["by_phase"]:
+        legs = [k for k in w["by_phase"] if k != "all"]
+        fig = go.Figure([go.Bar(name=ph, x=legs, y=[w["by_phase"][k][ph] for k in legs]) for ph in ("stance", "swing")])
+        fig.update_layout(title="Leg joints' error by gait phase", barmode="group", yaxis_title="normalised RMS")
+        figs.append(fig)
+    fig = go.Figure()
+    for name, t in w["trends"].items():
+        if t["bins"]:
+            fig.add_trace(go.Scatter(x=[(b["from"] + b["to"]) / 2 for b in t["bins"]], y=[b["error"] for b in t["bins"]],
+                                     mode="lines+markers", name=f"{name} (rho {t['rank_correlation']:.2f})"))
+    fig.update_layout(title="Joint error against joint speed, torque and action change (quartile bins)",
+                      xaxis_title="variable (its own units)", yaxis_title="normalised RMS")
+    figs.append(fig)
+    fig = go.Figure(go.Bar(x=[c.name for c in d.ranking], y=[c.judgement.explained for c in d.ranking],
+                           marker_color=["#2a9d8f" if c.judgement.significant else "#bbbbbb" for c in d.ranking]))
+    fig.update_layout(title="Share of the error above the noise floor each candidate explains (grey: not significant)",
+                      yaxis_range=[0, 1.05], yaxis_title="explained")
+    figs.append(fig)
+    if d.added:
+        steps = ["model"] + [f"+ {a.name}" for a in d.added]
+        fig = go.Figure()
+        for h in hs:
+            fig.add_trace(go.Scatter(x=steps, y=[_headline(d.before, h)] + [_headline(a.after, h) for a in d.added],
+                                     mode="lines+markers", name=f"{h} step{'s' if h > 1 else ''}"))
+        fig.add_hline(y=float(np.sqrt(d.floor_mse)), line_dash="dot", annotation_text="noise floor (one step)")
+        fig.update_layout(title="The error falling as effects are added", yaxis_title="normalised RMS (all channels)")
+        figs.append(fig)
+    parts = [pio.to_html(f, full_html=False, include_plotlyjs=(i == 0)) for i, f in enumerate(figs)]
+    ranking = "".join(
+        f"<tr><td>{c.name}</td><td>{c.fit.granularity}</td><td>{c.judgement.explained:.0%}</td>"
+        f"<td>{c.judgement.removed:+.1%}</td><td>{c.judgement.z:.1f}</td>"
+        f"<td>{html.escape(_params_text(c.fit))}</td></tr>" for c in d.ranking)
+    added = "".join(f"<li><b>{a.name}</b> {html.escape(json.dumps(a.fit.effect.to_json(a.fit.values)))}: headline "
+                    f"{a.before.headline:.4f} &rarr; {a.after.headline:.4f}</li>" for a in d.added)
+    body = f"""<!doctype html><html><head><meta charset="utf-8"><title>acn-diagnose: {html.escape(d.measurements)}</title>
+<style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
+td,th{{border:1px solid #ccc;padding:4px 8px}}</style></head><body>
+<h1>Diagnosis of {html.escape(d.measurements)}</h1>
+<p><b>Verdict: {d.verdict}</b> &mdash; {html.escape(d.reason)}.</p>
+<p>Model: {html.escape(d.before.model.describe())}. Headline error {d.before.headline:.4f} &rarr; {d.final.headline:.4f}
+({html.escape(HEADLINE)}). Noise floor: {1 - d.structured_share:.0%} of the error.</p>
+<p><b>Where:</b> {html.escape(d.where['summary'])}</p>
+<h2>Candidate effects</h2><table><tr><th>effect</th><th>fitted as</th><th>explained</th><th>error removed</th><th>z</th>
+<th>parameters</th></tr>{ranking}</table>
+{'<h2>Added</h2><ul>' + added + '</ul>' if added else ''}
+<h2>Plots</h2>{''.join(parts)}</body></html>"""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.parent / f".{path.name}.partial"
+    tmp.write_text(body)
+    tmp.replace(path)
+    return path
+
+
+def _headline(c: Comparison, h: int) -> float:
+    return float(np.sqrt(np.mean(np.array(list(c.error[h].values())) ** 2)))
