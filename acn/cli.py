@@ -85,6 +85,10 @@ def collect_parser() -> argparse.ArgumentParser:
     p.add_argument("--torque-limit", type=_positive_float, default=33.5, help="N m, every joint")
     p.add_argument("--corrector", type=Path, default=None,
                    help="frozen corrector directory (acn-fit output) applied to the target's actions")
+    p.add_argument("--hidden-effect", action="append", default=[], metavar="NAME[:param=value,...]|random",
+                   help="apply a physical effect to the source (the measured robot) at a realistic magnitude "
+                   "(random: a random catalogue effect); the answer goes to OUT.answer.json, never into the "
+                   "dataset; repeat for several effects")
     return p
 
 
@@ -100,7 +104,27 @@ def collect_config_from_args(args: argparse.Namespace):
                     action_mode=args.action_mode, kp=args.kp, kd=args.kd, torque_limit=args.torque_limit)
     return CollectConfig(source=args.source, target=args.target, policy=args.policy, episodes=args.episodes,
                          seconds=args.seconds, seed=args.seed, sim=sim,
-                         corrector=str(args.corrector) if args.corrector else None)
+                         corrector=str(args.corrector) if args.corrector else None,
+                         hidden_effects=_hidden_effects(args.hidden_effect, args.seed, sim))
+
+
+def _hidden_effects(specs: list[str], seed: int, sim) -> list:
+    """``--hidden-effect`` arguments -> effects with values, drawn from ``seed``; no name twice."""
+    import numpy as np
+
+    from acn.toolkit.hidden import parse_hidden
+
+    rng = np.random.default_rng([seed, 0x41])
+    out: list = []
+    for spec in specs:
+        for _ in range(100):
+            effect = parse_hidden(spec, rng, sim)
+            if effect.name not in {e.name for e in out}:
+                break
+            if spec != "random":
+                raise UserError(f"--hidden-effect {effect.name} is given twice")
+        out.append(effect)
+    return out
 
 
 def collect_main(argv: list[str] | None = None) -> int:
@@ -126,6 +150,10 @@ def collect_main(argv: list[str] | None = None) -> int:
             return EXIT_INTERRUPTED
         ends = ", ".join(f"{v} {k}" for k, v in sorted(counts.items()))
         print(f"wrote {sum(counts.values())} episode(s) ({ends}) to {path}")
+        if cfg.hidden_effects:
+            from acn.toolkit.hidden import answer_path
+
+            print(f"hidden effect(s) applied to the {cfg.source} robot; the answer is in {answer_path(path)}")
         print(f"open it: LeRobotDataset('acn/{path.name}', root='{path}')  (set HF_HUB_OFFLINE=1)")
         return 0
 
@@ -320,6 +348,129 @@ def view_main(argv: list[str] | None = None) -> int:
         return 0
 
     return _run("acn-view", body)
+
+
+# ----------------------------------------------------------------------------- acn-import
+def import_parser() -> argparse.ArgumentParser:
+    from acn.toolkit.backends import ACTION_MODES
+
+    p = _Parser(prog="acn-import", description="Turn a robot log (CSV or Parquet, one row per control step) into a "
+                "measurement dataset (LeRobot v3.0, the schema of acn-collect) that acn-diagnose reads.")
+    p.add_argument("log", type=Path, help="the log file (.csv or .parquet)")
+    p.add_argument("--out", required=True, type=Path, help="dataset directory to create")
+    p.add_argument("--control-hz", required=True, type=_positive_int, help="control rate the log was recorded at")
+    p.add_argument("--kp", required=True, type=_nonneg_float, help="joint PD stiffness the robot ran with, N m/rad")
+    p.add_argument("--kd", required=True, type=_nonneg_float, help="joint PD damping, N m s/rad")
+    p.add_argument("--torque-limit", required=True, type=_positive_float, help="N m, every joint")
+    p.add_argument("--action-mode", default="position", choices=ACTION_MODES)
+    p.add_argument("--physics-hz", type=_positive_int, default=1000, help="physics rate a model simulates it at")
+    p.add_argument("--map", type=Path, default=None, dest="map_file", metavar="MAP.json",
+                   help='rename and scale columns: {"FR_hip_pos": "q0", "FR_thigh_pos": {"column": "q1_deg", '
+                   '"scale": 0.0174533, "offset": 0.0}}')
+    p.add_argument("--dt-tolerance", type=_positive_float, default=0.1,
+                   help="a time step may differ from the control period by this fraction before the episode is split")
+    p.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
+    return p
+
+
+def import_main(argv: list[str] | None = None) -> int:
+    args = import_parser().parse_args(argv)
+
+    def body() -> int:
+        from acn.datasets.importer import ImportConfig, import_log
+
+        if args.out.exists() and not args.overwrite:
+            raise UserError(f"output directory {args.out} exists (use --overwrite to replace it)")
+        cfg = ImportConfig(control_hz=args.control_hz, kp=args.kp, kd=args.kd, torque_limit=args.torque_limit,
+                           action_mode=args.action_mode, physics_hz=args.physics_hz, dt_tolerance=args.dt_tolerance)
+        path, r = import_log(args.log, args.out, cfg, args.map_file, overwrite=args.overwrite)
+        print(f"read {r.rows} rows: {r.transitions} transitions in {r.episodes} episode(s); cut {r.cut_nonfinite} "
+              f"row(s) with non-finite values, split at {r.time_breaks} wrong time step(s), dropped "
+              f"{r.dropped_short} one-row segment(s)")
+        if r.missing:
+            print(f"not in the log (stored as NaN, not compared): {', '.join(r.missing)}")
+        print(f"wrote {path}; diagnose it: acn-diagnose {path} --model mujoco")
+        return 0
+
+    return _run("acn-import", body)
+
+
+# ----------------------------------------------------------------------------- acn-diagnose
+def diagnose_parser() -> argparse.ArgumentParser:
+    from acn.models.diagnose import DiagnoseConfig
+
+    d = DiagnoseConfig()
+    p = _Parser(prog="acn-diagnose", description="Compare a model with measurements, show where it fails, rank "
+                "which physical effect is missing, add it and watch the error fall.")
+    p.add_argument("measured", nargs="?", type=Path, help="measurement dataset (acn-import or acn-collect)")
+    p.add_argument("--model", default="mujoco", help="mujoco, pybullet or a model JSON file (default: mujoco)")
+    p.add_argument("--side", default="source", choices=("source", "target"), help="which side of a paired dataset")
+    p.add_argument("--add", action="append", default=[], metavar="EFFECT", help="fit and add this effect (repeatable)")
+    p.add_argument("--auto", action="store_true", help="repeat rank -> add while the error falls by more than the noise")
+    p.add_argument("--save-model", type=Path, default=None, metavar="FILE", help="write the updated model JSON")
+    p.add_argument("--json", type=Path, default=None, metavar="FILE", help="write the machine-readable result")
+    p.add_argument("--report", type=Path, default=None, metavar="FILE.html", help="write the HTML report")
+    p.add_argument("--explain-corrector", type=Path, default=None, metavar="DIR",
+                   help="explain a corrector from acn-fit: which effects its corrections look like")
+    p.add_argument("--list-effects", action="store_true", help="print the catalogue of effects and exit")
+    p.add_argument("--horizons", default=",".join(map(str, d.horizons)), help="open-loop horizons, control steps")
+    p.add_argument("--effects", default=None, help="comma-separated candidates (default: the whole catalogue)")
+    p.add_argument("--seed", type=_nonneg_int, default=d.seed)
+    return p
+
+
+def diagnose_main(argv: list[str] | None = None) -> int:
+    args = diagnose_parser().parse_args(argv)
+
+    def body() -> int:
+        from acn.toolkit.effects import describe_catalogue, get_effect
+
+        if args.list_effects:
+            print(describe_catalogue())
+            return 0
+        if args.measured is None:
+            raise UserError("give the measurement dataset (or --list-effects)")
+        from acn.datasets.measurements import load_measurements
+        from acn.models.diagnose import DiagnoseConfig, diagnose, explain_corrector
+        from acn.models.diagnose.report import terminal, write_html, write_json
+        from acn.toolkit.effects import EFFECT_NAMES, Model
+
+        try:
+            horizons = tuple(sorted({int(h) for h in args.horizons.split(",")}))
+        except ValueError:
+            raise UserError(f"--horizons must be whole numbers separated by commas, got {args.horizons!r}") from None
+        candidates = EFFECT_NAMES if args.effects is None else tuple(args.effects.split(","))
+        for name in (*candidates, *args.add):
+            get_effect(name)
+        if not args.measured.is_dir():
+            raise UserError(f"measurement dataset {args.measured} does not exist")
+        model = Model.parse(args.model)
+        cfg = DiagnoseConfig(horizons=horizons, candidates=candidates, seed=args.seed)
+        data = load_measurements(args.measured, side=args.side)
+        from tqdm import tqdm
+
+        with tqdm(total=100, file=sys.stderr, bar_format="{l_bar}{bar}| {elapsed} {postfix}",
+                  disable=None) as bar:
+            def say(message: str, fraction: float | None = None) -> None:
+                bar.set_description_str(message)
+                if fraction is not None:
+                    bar.update(int(round(100 * fraction)) - bar.n)
+
+            if args.explain_corrector is not None:
+                result = explain_corrector(data, model, args.explain_corrector, cfg, progress=say)
+            else:
+                result = diagnose(data, model, cfg, add=args.add, automatic=args.auto, progress=say)
+            say("done", 1.0)
+        print(terminal(result))
+        if args.json:
+            print(f"wrote {write_json(result, args.json)}")
+        if args.report:
+            print(f"wrote the report {write_html(result, args.report)}")
+        if args.save_model:
+            print(f"wrote the model {result.final.model.save(args.save_model)}")
+        return 0
+
+    return _run("acn-diagnose", body)
 
 
 if __name__ == "__main__":  # pragma: no cover
