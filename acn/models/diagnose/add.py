@@ -44,12 +44,11 @@ def _granularities(effect) -> list[str]:
     return ["shared", "type", "leg", "joint"]
 
 
-def choose_fit(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, floor_mse: float,
-               start: EffectFit | None = None) -> tuple[EffectFit, Judgement]:
+def choose_fit(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, judge_rows: np.ndarray,
+               base_residual: np.ndarray, start: EffectFit | None = None) -> tuple[EffectFit, Judgement]:
     """The effect fitted at the coarsest granularity no finer one significantly beats."""
     effect = get_effect(name)
     rows = problem.sample(problem.fit_rows, cfg.rank_rows, salt=3)
-    judge_rows = problem.sample(problem.held_rows, cfg.judge_rows, salt=4)
     best: tuple[EffectFit, Judgement] | None = None
     for g in _granularities(effect):
         if best is not None and g == "joint" and best[0].granularity == "shared":
@@ -57,45 +56,39 @@ def choose_fit(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, f
         seed = start.values if start is not None and start.granularity == g else (best[0].values if best else None)
         fit = fit_effect(problem, model, effect, g, rows, start=seed)
         if best is None:
-            best = (fit, judge(problem, model, fit.model, judge_rows, floor_mse))
+            best = (fit, judge(problem, fit.model, judge_rows, base_residual))
             continue
-        finer = judge(problem, best[0].model, fit.model, judge_rows, floor_mse)
-        if finer.significant:
-            best = (fit, judge(problem, model, fit.model, judge_rows, floor_mse))
+        if judge(problem, fit.model, judge_rows, best[1].residual_after, reference_mse=best[1].mse_before).significant:
+            best = (fit, judge(problem, fit.model, judge_rows, base_residual))
     fit = best[0]
     more = problem.sample(problem.fit_rows, cfg.fit_rows, salt=5)
     if len(more) > len(rows):  # refine on more rows, starting from the chosen values
         fit = fit_effect(problem, model, effect, fit.granularity, more, start=fit.values, max_iter=6)
-    return fit, judge(problem, model, fit.model, judge_rows, floor_mse)
+    return fit, judge(problem, fit.model, judge_rows, base_residual)
 
 
-def add_effect(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, floor_mse: float,
-               before: Comparison, start: EffectFit | None = None) -> Added:
-    fit, judgement = choose_fit(problem, model, name, cfg, floor_mse, start)
+def add_effect(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, judge_rows: np.ndarray,
+               base_residual: np.ndarray, before: Comparison, start: EffectFit | None = None) -> Added:
+    fit, judgement = choose_fit(problem, model, name, cfg, judge_rows, base_residual, start)
     return Added(fit, judgement, before, compare(problem, fit.model, cfg))
 
 
-def auto(problem: Problem, model: Model, cfg: DiagnoseConfig, floor_mse: float, first: Comparison,
-         ranking: list[Candidate], progress=None) -> list[Added]:
+def auto(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows: np.ndarray, base_residual: np.ndarray,
+         floor_mse: float, ranking: list[Candidate], progress=None) -> list[Added]:
     """Greedy rank -> add while the best candidate removes more than the noise."""
     added: list[Added] = []
-    current = first
+    current, residual = first, base_residual
     while len(added) < cfg.auto_max:
         best = next((c for c in ranking if c.name not in {a.name for a in added}), None)
-        if best is None or not best.judgement.significant or best.judgement.explained < AUTO_MIN_EXPLAINED:
+        if best is None or not best.judgement.significant or best.judgement.explained(floor_mse) < AUTO_MIN_EXPLAINED:
             break
         if progress:
             progress(f"adding {best.name}", None)
-        step = add_effect(problem, current.model, best.name, cfg, floor_mse, current, start=best.fit)
+        step = add_effect(problem, current.model, best.name, cfg, judge_rows, residual, current, start=best.fit)
         if not step.judgement.significant:
             break
         added.append(step)
-        current = step.after
+        current, residual = step.after, step.judgement.residual_after
         if len(added) < cfg.auto_max:
-            ranking = rank(problem, current.model, cfg, floor_mse, progress)
+            ranking = rank(problem, current.model, cfg, judge_rows, residual, progress)
     return added
-
-
-def explained_share(mse_before: float, mse_after: float, floor_mse: float) -> float:
-    structured = mse_before - floor_mse
-    return float(np.clip((mse_before - mse_after) / structured, 0.0, 1.0)) if structured > 0 else 0.0

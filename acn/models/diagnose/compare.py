@@ -66,13 +66,14 @@ def compare(problem: Problem, model: Model, cfg: DiagnoseConfig) -> Comparison:
     return Comparison(model, error, channel_error, rows[ok], residual[ok], predicted[ok], int((~ok).sum()))
 
 
-def floor_of(problem: Problem, comparison: Comparison, rows: int = 4000) -> np.ndarray:
-    """(C,) noise-floor MSE per channel for the comparison's rows (``noise`` module)."""
-    fit = problem.sample(problem.fit_rows, rows, salt=2)
-    r_fit = problem.residual_of(comparison.model.sim_config(problem.control), fit)
+def floor_of(problem: Problem, model: Model, rows: np.ndarray, residual: np.ndarray, fit_rows: int = 3000) -> np.ndarray:
+    """(C,) noise-floor MSE per channel: what the ``noise`` regressions leave of ``model``'s
+    residuals ``residual`` on ``rows``, learned from its residuals on a sample of fit rows."""
+    fit = problem.sample(problem.fit_rows, fit_rows, salt=2)
+    r_fit = problem.residual_of(model.sim_config(problem.control), fit)
     ok = np.isfinite(r_fit).all(1)
-    held = comparison.rows[:rows]
-    return noise_floor(problem.data, problem.channel_names, fit[ok], r_fit[ok], held, comparison.residual[:rows])
+    keep = np.isfinite(residual).all(1)
+    return noise_floor(problem.data, problem.channel_names, fit[ok], r_fit[ok], rows[keep], residual[keep])
 
 
 def _corrector(model: Model):

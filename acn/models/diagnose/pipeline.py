@@ -8,8 +8,13 @@ Verdict:
 - ``none``: the model matches within the noise (the error is all noise floor, or zero), and no
   candidate improves held-out predictions significantly;
 - ``effect``: the best candidate (or, with ``--auto``, the effects added one after the other)
-  significantly removes at least half of the structured error (error above the noise floor);
-- ``unexplained``: there is structured error, and no candidate explains half of it.
+  significantly removes at least 70 % of the structured error (error above the noise floor),
+  with parameters inside their physical range (not pushed against a bound);
+- ``unexplained``: there is structured error, and no candidate explains it that way.
+
+The noise floor is what ridge regressions on a library of state and action terms cannot
+predict (``noise``) of the model's held-out residual, or of what the best candidates leave,
+whichever is lower: after the right effect only noise is left.
 """
 
 from __future__ import annotations
@@ -20,16 +25,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from acn.datasets.measurements import Measurements
-from acn.models.diagnose.add import Added, add_effect, auto, explained_share
+from acn.models.diagnose.add import Added, add_effect, auto
 from acn.models.diagnose.compare import Comparison, compare, floor_of
 from acn.models.diagnose.problem import DiagnoseConfig, Problem, prepare
-from acn.models.diagnose.rank import Candidate, rank
+from acn.models.diagnose.rank import Candidate, explained_share, rank
 from acn.models.diagnose.where import breakdown
 from acn.toolkit.effects import Model, get_effect
 
-EXACT = 1e-3                   # headline error below which a model reproduces the data (float32 storage: ~1e-6)
-EFFECT_SHARE = 0.5            # of the structured error an effect must explain to be named
+EXACT = 1e-3                  # headline error below which a model reproduces the data (float32 storage: ~1e-6)
+EFFECT_SHARE = 0.7            # of the structured error an effect must explain to be named
 STRUCTURED_SHARE = 0.15       # of the error that must be structured before anything is missing
+FLOOR_CANDIDATES = 2          # best candidates whose leftover residual also bounds the noise floor
 
 
 @dataclass
@@ -37,7 +43,9 @@ class Diagnosis:
     measurements: str
     problem: Problem
     before: Comparison
-    floor: np.ndarray            # (C,) noise-floor MSE per compared channel
+    judge_rows: np.ndarray       # held-out rows every candidate is judged on
+    floor: np.ndarray            # (C,) noise-floor MSE per compared channel on those rows
+    mse_judged: float            # the model's MSE on those rows
     where: dict
     ranking: list[Candidate]
     added: list[Added]
@@ -55,47 +63,50 @@ class Diagnosis:
 
     @property
     def structured_share(self) -> float:
-        mse = self.before.headline ** 2
-        return float(np.clip(1.0 - self.floor_mse / mse, 0.0, 1.0)) if mse > 0 else 0.0
+        return float(np.clip(1.0 - self.floor_mse / self.mse_judged, 0.0, 1.0)) if self.mse_judged > 0 else 0.0
 
 
-def verdict(before: Comparison, floor_mse: float, ranking: list[Candidate], added: list[Added],
+def at_bound(fit) -> list[str]:
+    """Free parameters pushed against a bound that is not their nominal value: an effect that
+    needs an implausible value to explain the data is standing in for something else."""
+    out = []
+    for p in fit.effect.parameters:
+        v = np.atleast_1d(np.asarray(fit.values[p.name], float))
+        span = p.upper - p.lower
+        for bound in (p.lower, p.upper):
+            if bound != p.nominal and np.any(np.abs(v - bound) <= 0.01 * span):
+                out.append(p.name)
+    return out
+
+
+def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Candidate], added: list[Added],
             automatic: bool) -> tuple[str, str]:
     """(verdict, reason in words); see module docstring."""
-    mse = before.headline ** 2
     if before.headline < EXACT:
         return "none", f"the model reproduces the measurements (headline error {before.headline:.2g})"
-    structured = 1.0 - floor_mse / mse
+    structured = 1.0 - floor_mse / mse if mse > 0 else 0.0
     top = ranking[0] if ranking else None
     if automatic and added:
-        share = explained_share(mse, added[-1].after.headline ** 2, floor_mse)
+        share = explained_share(mse, added[-1].judgement.mse_after, floor_mse)
         names = " + ".join(a.name for a in added)
-        if share >= EFFECT_SHARE:
+        if share >= EFFECT_SHARE and not any(at_bound(a.fit) for a in added):
             return "effect", f"{names} explain {share:.0%} of the error above the noise floor"
-    if top is not None and top.judgement.significant and top.judgement.explained >= EFFECT_SHARE:
-        return "effect", (f"{top.name} explains {top.judgement.explained:.0%} of the error above the noise floor "
-                          f"(held-out improvement {top.judgement.z:.1f} standard errors)")
+    if top is not None and top.judgement.significant:
+        share = top.judgement.explained(floor_mse)
+        stuck = at_bound(top.fit)
+        if share >= EFFECT_SHARE and not stuck:
+            return "effect", (f"{top.name} explains {share:.0%} of the error above the noise floor "
+                              f"(held-out improvement {top.judgement.z:.1f} standard errors)")
+        if structured >= STRUCTURED_SHARE:
+            why = (f"needs {', '.join(stuck)} at the bound of its range" if stuck
+                   else f"explains only {share:.0%}")
+            return "unexplained", (f"{structured:.0%} of the error is structured (above the noise floor); the best "
+                                   f"candidate, {top.name}, {why}")
     if structured >= STRUCTURED_SHARE:
-        best = (f"; the best candidate, {top.name}, explains {top.judgement.explained:.0%}" if top else "")
-        return "unexplained", f"{structured:.0%} of the error is structured (above the noise floor){best}"
+        return "unexplained", f"{structured:.0%} of the error is structured (above the noise floor) and no candidate " \
+                              "improves held-out predictions significantly"
     return "none", (f"the error is within the noise (only {max(structured, 0):.0%} of it is predictable from the "
                     "state and actions) and no candidate improves held-out predictions significantly")
-
-
-def _lower_floor(floor: np.ndarray, before: Comparison, ranking: list[Candidate]) -> np.ndarray:
-    """The learned floor, lowered to the held-out error the best candidate reached: what a
-    fitted effect removes is structured error, whatever the networks missed. The candidates'
-    explained shares are restated against the final floor."""
-    if not ranking:
-        return floor
-    best = min(c.judgement.mse_after / c.judgement.mse_before for c in ranking if c.judgement.mse_before > 0)
-    mse = before.headline ** 2
-    target = min(float(np.mean(floor)), best * mse)
-    lowered = floor * (target / float(np.mean(floor))) if np.mean(floor) > 0 else floor
-    for c in ranking:
-        j = c.judgement
-        j.explained = explained_share(j.mse_before, j.mse_after, target * j.mse_before / mse)
-    return lowered
 
 
 def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None, add: list[str] = (),
@@ -109,27 +120,37 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
     problem = prepare(data, model, cfg)
     say("comparing the model with the measurements")
     before = compare(problem, model, cfg)
-    floor = floor_of(problem, before)
-    t1 = time.perf_counter()
+    judge_rows = problem.sample(problem.held_rows, cfg.judge_rows, salt=4)
+    residual = problem.residual_of(model.sim_config(problem.control), judge_rows)
+    ok = np.isfinite(residual).all(1)
+    judge_rows, residual = judge_rows[ok], residual[ok]
+    mse = float(np.mean(residual ** 2))
     where = breakdown(problem, before)
+    t1 = time.perf_counter()
     say("ranking the catalogue")
-    ranking = rank(problem, model, cfg, float(np.mean(floor)), progress=say)
+    ranking = rank(problem, model, cfg, judge_rows, residual, progress=say)
+    # The floor: what no regression on the state and actions predicts, of the model's residual
+    # or of what the best candidates leave (after the right effect, only noise is left).
+    floors = [floor_of(problem, model, judge_rows, residual)]
+    floors += [floor_of(problem, c.fit.model, judge_rows, c.judgement.residual_after)
+               for c in ranking[:FLOOR_CANDIDATES] if c.judgement.significant]
+    floor = min(floors, key=lambda f: float(np.mean(f)))
+    floor_mse = float(np.mean(floor))
     t2 = time.perf_counter()
     added: list[Added] = []
-    current = before
+    current, current_residual = before, residual
     for name in add:
-        say(f"adding {name}")
+        say(f"adding {name}", None)
         start = next((c.fit for c in ranking if c.name == name), None) if not added else None
-        step = add_effect(problem, current.model, name, cfg, float(np.mean(floor)), current, start=start)
+        step = add_effect(problem, current.model, name, cfg, judge_rows, current_residual, current, start=start)
         added.append(step)
-        current = step.after
+        current, current_residual = step.after, step.judgement.residual_after
     if automatic:
-        added += auto(problem, current.model, cfg, float(np.mean(floor)), current,
-                      ranking if not added else rank(problem, current.model, cfg, float(np.mean(floor)), say), say)
+        again = ranking if not added else rank(problem, current.model, cfg, judge_rows, current_residual, say)
+        added += auto(problem, current, cfg, judge_rows, current_residual, floor_mse, again, say)
     t3 = time.perf_counter()
-    floor = _lower_floor(floor, before, ranking)
-    v, reason = verdict(before, float(np.mean(floor)), ranking, added, automatic)
-    return Diagnosis(data.description, problem, before, floor, where, ranking, added, v, reason,
+    v, reason = verdict(before, mse, floor_mse, ranking, added, automatic)
+    return Diagnosis(data.description, problem, before, judge_rows, floor, mse, where, ranking, added, v, reason,
                      seconds={"compare": t1 - t0, "rank": t2 - t1, "add": t3 - t2, "total": t3 - t0})
 
 

@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from acn.models.diagnose.add import Added, explained_share
+from acn.models.diagnose.add import Added
 from acn.models.diagnose.compare import Comparison, group_errors
-from acn.models.diagnose.pipeline import Diagnosis
+from acn.models.diagnose.pipeline import Diagnosis, at_bound
 from acn.models.diagnose.rank import Candidate
 
 HEADLINE = ("one-step teacher-forced prediction error on held-out rows: RMS over every compared channel of "
@@ -41,22 +41,27 @@ def _free(fit) -> list[dict]:
     return [{"name": n, "value": float(v), "stderr": float(e)} for n, v, e in zip(fit.names, fit.x, fit.stderr)]
 
 
-def _params_text(fit) -> str:
-    return ", ".join(f"{f['name']}={f['value']:.4g} +- {f['stderr']:.2g}" for f in _free(fit))
+def _params_text(fit, most: int = 4) -> str:
+    free = _free(fit)
+    if len(free) > most:  # 12 per-joint values: the spread, the rest is in the JSON
+        v = np.array([f["value"] for f in free])
+        return f"{len(free)} values {v.min():.3g}..{v.max():.3g} (see --json)"
+    return ", ".join(f"{f['name']}={f['value']:.4g} +- {f['stderr']:.2g}" for f in free)
 
 
-def _candidate(c: Candidate) -> dict:
+def _candidate(c: Candidate, floor_mse: float) -> dict:
     j = c.judgement
     return {"name": c.name, "params": c.fit.effect.to_json(c.fit.values), "granularity": c.fit.granularity,
-            "free_parameters": _free(c.fit), "explained": round(j.explained, 4), "removed": round(j.removed, 4),
-            "z": round(j.z, 2), "significant": j.significant, "score": round(c.score, 4)}
+            "free_parameters": _free(c.fit), "explained": round(j.explained(floor_mse), 4),
+            "removed": round(j.removed, 4), "z": round(j.z, 2), "significant": j.significant,
+            "at_bound": at_bound(c.fit), "score": round(c.score, 4)}
 
 
 def _added(a: Added, floor_mse: float) -> dict:
     return {"name": a.name, "params": a.fit.effect.to_json(a.fit.values), "granularity": a.fit.granularity,
             "free_parameters": _free(a.fit), "error_before": _errors(a.before), "error_after": _errors(a.after),
             "headline_before": a.before.headline, "headline_after": a.after.headline,
-            "explained": explained_share(a.before.headline ** 2, a.after.headline ** 2, floor_mse)}
+            "explained": a.judgement.explained(floor_mse), "removed": a.judgement.removed}
 
 
 def to_json(d: Diagnosis) -> dict:
@@ -72,7 +77,7 @@ def to_json(d: Diagnosis) -> dict:
         "noise_floor": {"mse": d.floor_mse, "share_of_error": 1.0 - d.structured_share,
                         "by_group": {g: round(v, 6) for g, v in groups.items()}},
         "where": d.where,
-        "ranking": [_candidate(c) for c in d.ranking],
+        "ranking": [_candidate(c, d.floor_mse) for c in d.ranking],
         "added": [_added(a, d.floor_mse) for a in d.added],
         "model": d.before.model.to_json(), "final_model": d.final.model.to_json(),
         "seconds": d.seconds,
@@ -126,7 +131,7 @@ def terminal(d: Diagnosis) -> str:
     for c in d.ranking:
         j = c.judgement
         params = _params_text(c.fit)
-        rows.append([c.name, c.fit.granularity, f"{j.explained:.0%}", f"{j.removed:+.1%}", f"{j.z:.1f}",
+        rows.append([c.name, c.fit.granularity, f"{j.explained(d.floor_mse):.0%}", f"{j.removed:+.1%}", f"{j.z:.1f}",
                      "yes" if j.significant else "no", params])
     out.append(_table(["effect", "fitted as", "explained", "error removed", "z", "significant", "parameters"], rows))
     for a in d.added:
@@ -166,7 +171,7 @@ def write_html(d: Diagnosis, path: str | Path) -> Path:
     fig.update_layout(title="Joint error against joint speed, torque and action change (quartile bins)",
                       xaxis_title="variable (its own units)", yaxis_title="normalised RMS")
     figs.append(fig)
-    fig = go.Figure(go.Bar(x=[c.name for c in d.ranking], y=[c.judgement.explained for c in d.ranking],
+    fig = go.Figure(go.Bar(x=[c.name for c in d.ranking], y=[c.judgement.explained(d.floor_mse) for c in d.ranking],
                            marker_color=["#2a9d8f" if c.judgement.significant else "#bbbbbb" for c in d.ranking]))
     fig.update_layout(title="Share of the error above the noise floor each candidate explains (grey: not significant)",
                       yaxis_range=[0, 1.05], yaxis_title="explained")
@@ -182,7 +187,7 @@ def write_html(d: Diagnosis, path: str | Path) -> Path:
         figs.append(fig)
     parts = [pio.to_html(f, full_html=False, include_plotlyjs=(i == 0)) for i, f in enumerate(figs)]
     ranking = "".join(
-        f"<tr><td>{c.name}</td><td>{c.fit.granularity}</td><td>{c.judgement.explained:.0%}</td>"
+        f"<tr><td>{c.name}</td><td>{c.fit.granularity}</td><td>{c.judgement.explained(d.floor_mse):.0%}</td>"
         f"<td>{c.judgement.removed:+.1%}</td><td>{c.judgement.z:.1f}</td>"
         f"<td>{html.escape(_params_text(c.fit))}</td></tr>" for c in d.ranking)
     added = "".join(f"<li><b>{a.name}</b> {html.escape(json.dumps(a.fit.effect.to_json(a.fit.values)))}: headline "

@@ -1,0 +1,165 @@
+"""Robot logs written by code outside acn-collect, for testing the diagnosis as a user would.
+
+MuJoCo is stepped directly (no acn backend), the PD loop and the command delay are our own,
+the controllers are not acn's built-in policies, physics can be changed with any ``MjSpec``
+edit (catalogue effects or effects outside the catalogue), sensor noise can be added, and the
+columns can be renamed and scaled. The log is a CSV table with one row per control step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import mujoco
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pacsv
+
+from acn.toolkit.robot import STANCE, URDF_JOINT, urdf_path
+from acn.toolkit.state import FOOT_NAMES, JOINT_NAMES, STATE_NAMES
+
+G = 9.81
+NOISE = {"base_pos": 0.002, "base_rpy": 0.004, "joint_pos": 0.002, "base_linvel": 0.03, "base_angvel": 0.03,
+         "joint_vel": 0.08, "imu_acc": 0.15}  # typical sensor noise (std) per channel group, SI units
+
+
+@dataclass
+class LogSpec:
+    seconds: float = 4.0
+    episodes: int = 2
+    seed: int = 0
+    controller: str = "sines"            # "sines": random smooth joint targets; "pace": lateral-pair gait
+    control_hz: int = 50
+    physics_hz: int = 1000
+    kp: float = 60.0
+    kd: float = 1.5
+    torque_limit: float = 33.5
+    latency_steps: int = 0               # physics steps a command arrives late
+    strength: float = 1.0                # torque produced / commanded
+    encoder_offset: np.ndarray | None = None  # (12,) rad, the PD and the log read q + offset
+    spec_edit: Callable[[mujoco.MjSpec], None] | None = None
+    noise: float = 0.0                   # multiple of NOISE
+    rename: dict[str, tuple[str, float]] = field(default_factory=dict)  # ours -> (column, scale)
+    drop: tuple[str, ...] = ()           # channels left out of the log
+
+
+def _spec(s: LogSpec) -> mujoco.MjSpec:
+    spec = mujoco.MjSpec.from_file(urdf_path())
+    spec.option.timestep = 1.0 / s.physics_hz
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_EULER
+    spec.body("trunk").add_freejoint(name="root")
+    for g in spec.geoms:
+        g.contype, g.conaffinity = 1, 0
+    spec.worldbody.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1], contype=0, conaffinity=1)
+    for j in JOINT_NAMES:
+        spec.joint(URDF_JOINT[j]).actfrclimited = mujoco.mjtLimited.mjLIMITED_FALSE
+        spec.add_actuator(name=j, target=URDF_JOINT[j], trntype=mujoco.mjtTrn.mjTRN_JOINT).gainprm[0] = 1.0
+    if s.spec_edit:
+        s.spec_edit(spec)
+    return spec
+
+
+def _targets(s: LogSpec, rng: np.random.Generator):
+    if s.controller == "sines":
+        freq = rng.uniform(0.4, 4.0, (3, 12))
+        amp = rng.uniform(0.03, 0.12, (3, 12)) * np.tile([0.6, 1.0, 1.0], 4)
+        phase = rng.uniform(0, 2 * np.pi, (3, 12))
+        return lambda t: STANCE + (amp * np.sin(2 * np.pi * freq * t + phase)).sum(0)
+    if s.controller == "pace":  # left and right pairs alternate (acn's trot uses diagonals)
+        f = rng.uniform(1.6, 2.2)
+
+        def pace(t: float) -> np.ndarray:
+            out = STANCE.copy()
+            for leg, off in ((0, 0.0), (2, 0.0), (1, np.pi), (3, np.pi)):  # FR+RR vs FL+RL
+                ph = 2 * np.pi * f * t + off
+                out[3 * leg + 1] += 0.25 * np.cos(ph)
+                out[3 * leg + 2] -= 0.5 * max(np.sin(ph), 0.0)
+            return out
+        return pace
+    raise ValueError(s.controller)
+
+
+def _rpy(quat_wxyz: np.ndarray) -> np.ndarray:
+    w, x, y, z = quat_wxyz
+    return np.array([np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)),
+                     np.arcsin(np.clip(2 * (w * y - z * x), -1, 1)),
+                     np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))])
+
+
+def simulate(s: LogSpec) -> dict[str, np.ndarray]:
+    """Rows of every episode, as our channel names -> values (plus episode_index, timestamp, actions)."""
+    m = _spec(s).compile()
+    d = mujoco.MjData(m)
+    qadr = np.array([m.jnt_qposadr[m.joint(URDF_JOINT[j]).id] for j in JOINT_NAMES])
+    dadr = np.array([m.jnt_dofadr[m.joint(URDF_JOINT[j]).id] for j in JOINT_NAMES])
+    floor = m.geom("floor").id
+    feet = [m.body(f"{f}_toe").id if mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{f}_toe") >= 0
+            else m.body(f"{f}_lower").id for f in FOOT_NAMES]
+    offset = np.zeros(12) if s.encoder_offset is None else np.asarray(s.encoder_offset, float)
+    sub = s.physics_hz // s.control_hz
+    rng = np.random.default_rng(s.seed)
+    rows: dict[str, list] = {k: [] for k in ("episode_index", "timestamp", *STATE_NAMES,
+                                             *(f"action.{j}" for j in JOINT_NAMES))}
+    for ep in range(s.episodes):
+        target = _targets(s, rng)
+        mujoco.mj_resetData(m, d)
+        d.qpos[2] = 0.32
+        d.qpos[3:7] = [1, 0, 0, 0]
+        d.qpos[qadr] = STANCE + rng.uniform(-0.03, 0.03, 12) - offset
+        mujoco.mj_forward(m, d)
+        queue = [STANCE.copy()] * s.latency_steps  # a command waits this many physics steps
+        v_prev = d.qvel[0:3].copy()
+        touching = np.ones(4)
+        for k in range(int(s.seconds * s.control_hz)):
+            rot = d.xmat[m.body("trunk").id].reshape(3, 3)
+            acc = (d.qvel[0:3] - v_prev) * s.control_hz + np.array([0, 0, G])
+            state = np.concatenate([d.qpos[0:3], _rpy(d.qpos[3:7]), d.qpos[qadr] + offset, rot.T @ d.qvel[0:3],
+                                    d.qvel[3:6], d.qvel[dadr], touching, rot.T @ acc])
+            a = target(k / s.control_hz)
+            for name, v in zip(STATE_NAMES, state):
+                rows[name].append(v)
+            for j, v in zip(JOINT_NAMES, a):
+                rows[f"action.{j}"].append(v)
+            rows["episode_index"].append(ep)
+            rows["timestamp"].append(k / s.control_hz)
+            v_prev = d.qvel[0:3].copy()
+            touching = np.zeros(4)
+            for _ in range(sub):
+                queue.append(a)
+                cmd = queue.pop(0)
+                q, qd = d.qpos[qadr] + offset, d.qvel[dadr]
+                tau = np.clip(s.kp * (cmd - q) - s.kd * qd, -s.torque_limit, s.torque_limit)
+                d.ctrl[:] = s.strength * tau
+                mujoco.mj_step(m, d)
+                for c in d.contact[: d.ncon]:
+                    for i, b in enumerate(feet):
+                        if floor in (c.geom1, c.geom2) and b in (m.geom_bodyid[c.geom1], m.geom_bodyid[c.geom2]):
+                            touching[i] = 1.0
+    out = {k: np.asarray(v, dtype=float) for k, v in rows.items()}
+    if s.noise:
+        noise_rng = np.random.default_rng(s.seed + 1000)
+        for g, sd in NOISE.items():
+            from acn.toolkit.state import GROUPS
+
+            for name in GROUPS[g]:
+                out[name] = out[name] + noise_rng.normal(0, sd * s.noise, len(out[name]))
+    return out
+
+
+def write_log(path, s: LogSpec) -> dict:
+    """Simulate and write the CSV; returns the map a user would pass to ``acn-import --map``."""
+    cols = simulate(s)
+    mapping = {}
+    table = {}
+    for name, values in cols.items():
+        if name in s.drop:
+            continue
+        if name in s.rename:
+            column, scale = s.rename[name]
+            table[column] = values / scale
+            mapping[name] = {"column": column, "scale": scale, "offset": 0.0}
+        else:
+            table[name] = values
+    pacsv.write_csv(pa.table(table), str(path))
+    return mapping

@@ -1,0 +1,220 @@
+"""acn-diagnose on data with hidden effects: the effect is named, fitted and its error removed;
+nominal data gives "none", physics outside the catalogue gives "unexplained"."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from robot_log import LogSpec, write_log
+
+from acn.datasets.measurements import load_measurements
+from acn.datasets.record import record
+from acn.errors import UserError
+from acn.models.diagnose import DiagnoseConfig, diagnose
+from acn.toolkit.collector import CollectConfig
+from acn.toolkit.effects import AppliedEffect, Model, get_effect
+
+# Small and quick: a few hundred rows, a few hundred re-simulated per stage.
+FAST = DiagnoseConfig(horizons=(1, 5), compare_rows=400, rollout_starts=40, rank_rows=200, judge_rows=400,
+                      fit_rows=300, rank_iterations=4)
+
+
+def measured(tmp_path, hidden: dict, policy: str = "excite", source: str = "mujoco", seconds: float = 4.0,
+             episodes: int = 2, seed: int = 0):
+    """Measurements recorded by acn-collect with hidden effects, read back through LeRobotDataset."""
+    effects = [AppliedEffect(get_effect(n), get_effect(n).parse(v)) for n, v in hidden.items()]
+    cfg = CollectConfig(source=source, target=None, policy=policy, episodes=episodes, seconds=seconds, seed=seed,
+                        hidden_effects=effects)
+    path = record(cfg, tmp_path / "measured")
+    return load_measurements(path)
+
+
+def close(fitted, true, rel: float = 0.2) -> bool:
+    fitted, true = np.atleast_1d(np.asarray(fitted, float)), np.atleast_1d(np.asarray(true, float))
+    return bool(np.abs(fitted - true).max() <= rel * np.abs(true).max())
+
+
+OFFSETS = [0.05, -0.08, 0.1, -0.04, 0.06, -0.12, 0.03, 0.09, -0.07, -0.1, 0.04, 0.08]
+CASES = {  # effect -> (hidden params, policy that excites it)
+    "joint_damping": ({"value": 0.4}, "excite"),
+    "joint_friction": ({"value": 0.3}, "excite"),
+    "armature": ({"value": 0.015}, "excite"),
+    "actuator_latency": ({"seconds": 0.012}, "excite"),
+    "motor_strength": ({"scale": 0.8}, "excite"),
+    "torque_limit": ({"value": 18.0}, "excite"),
+    "pd_gains": ({"kp_scale": 0.75, "kd_scale": 0.8}, "excite"),
+    "payload": ({"mass": 2.0, "com_x": 0.04, "com_y": -0.02, "com_z": 0.03}, "excite"),
+    "ground_friction": ({"value": 0.4}, "trot"),
+    "encoder_offset": ({"value": OFFSETS}, "excite"),
+    "backlash": ({"value": 0.03}, "excite"),
+}
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_each_hidden_effect_is_ranked_first_fitted_and_removed(tmp_path, name):
+    params, policy = CASES[name]
+    d = diagnose(measured(tmp_path, {name: params}, policy), Model.parse("mujoco"), FAST, add=[name])
+    assert d.ranking[0].name == name, [(c.name, c.score) for c in d.ranking[:3]]
+    assert d.verdict == "effect", d.reason
+    fitted = d.added[0].fit.values
+    for key, true in params.items():
+        if key.startswith("com_"):
+            continue
+        assert close(fitted[key], true), (key, fitted[key], true)
+    if name == "payload":
+        com = np.array([fitted[k] for k in ("com_x", "com_y", "com_z")])
+        true = np.array([params[k] for k in ("com_x", "com_y", "com_z")])
+        assert np.linalg.norm(com - true) <= 0.2 * np.linalg.norm(true), com
+    added = d.added[0]
+    assert added.judgement.removed >= 0.8 and added.judgement.explained(d.floor_mse) >= 0.8
+    assert added.after.headline < added.before.headline
+
+
+def test_two_effects_together_are_both_found(tmp_path):
+    data = measured(tmp_path, {"actuator_latency": {"seconds": 0.01}, "joint_damping": {"value": 0.5}})
+    d = diagnose(data, Model.parse("mujoco"), FAST, automatic=True)
+    names = [a.name for a in d.added]
+    assert set(names[:2]) == {"actuator_latency", "joint_damping"}, names
+    values = {a.name: a.fit.values for a in d.added}
+    assert close(values["actuator_latency"]["seconds"], 0.01) and close(values["joint_damping"]["value"], 0.5)
+    assert d.verdict == "effect" and d.final.headline < 0.2 * d.before.headline
+
+
+def test_nominal_data_is_none(tmp_path):
+    d = diagnose(measured(tmp_path, {}), Model.parse("mujoco"), FAST)
+    assert d.verdict == "none", d.reason
+
+
+def test_pybullet_measurements_with_a_mujoco_model_still_find_the_effect(tmp_path):
+    """The simulators' own gap is background; the hidden latency stands out of it."""
+    data = measured(tmp_path, {"actuator_latency": {"seconds": 0.02}}, source="pybullet", seconds=3.0)
+    d = diagnose(data, Model.parse("mujoco"), FAST)
+    assert d.ranking[0].name == "actuator_latency", [(c.name, c.score) for c in d.ranking[:3]]
+    assert close(d.ranking[0].fit.values["seconds"], 0.02, rel=0.25)
+
+
+@pytest.fixture(scope="module")
+def noisy_logs(tmp_path_factory):
+    """Logs from code outside acn-collect (other controller, sensor noise), imported with acn-import."""
+    from acn.datasets.importer import ImportConfig, import_log
+
+    root = tmp_path_factory.mktemp("logs")
+    springs = lambda spec: [j.stiffness.__setitem__(0, 3.0) for j in spec.joints if j.name != "root"]  # noqa: E731
+    out = {}
+    for name, spec in {"nominal": LogSpec(noise=1.0, seed=1),
+                       "latency": LogSpec(noise=1.0, seed=3, latency_steps=15),
+                       "springs": LogSpec(noise=1.0, seed=2, spec_edit=springs)}.items():
+        write_log(root / f"{name}.csv", spec)
+        out[name], _ = import_log(root / f"{name}.csv", root / name, ImportConfig(50, 60.0, 1.5, 33.5))
+    return out
+
+
+def test_noisy_nominal_log_is_none(noisy_logs):
+    d = diagnose(load_measurements(noisy_logs["nominal"]), Model.parse("mujoco"), FAST)
+    assert d.verdict == "none", d.reason
+    assert 0.5 < 1 - d.structured_share <= 1.0  # the error is mostly noise, and the report says so
+
+
+def test_noisy_log_from_another_controller_finds_the_latency(noisy_logs):
+    d = diagnose(load_measurements(noisy_logs["latency"]), Model.parse("mujoco"), FAST, add=["actuator_latency"])
+    assert d.ranking[0].name == "actuator_latency" and d.verdict == "effect", d.reason
+    assert close(d.added[0].fit.values["seconds"], 0.015, rel=0.15)
+
+
+def test_physics_outside_the_catalogue_is_unexplained(noisy_logs):
+    """Joint springs are in no candidate: whatever fits best leaves structure, or needs absurd values."""
+    d = diagnose(load_measurements(noisy_logs["springs"]), Model.parse("mujoco"), FAST)
+    assert d.verdict == "unexplained", d.reason
+
+
+def test_cli_writes_json_report_and_model(tmp_path, capsys):
+    from acn.cli import diagnose_main
+
+    data_dir = tmp_path / "m"
+    record(CollectConfig(source="mujoco", target=None, policy="excite", episodes=2, seconds=2.0, seed=4,
+                         hidden_effects=[AppliedEffect(get_effect("motor_strength"), {"scale": np.full(12, 0.8)})]),
+           data_dir)
+    args = [str(data_dir), "--model", "mujoco", "--add", "motor_strength", "--json", str(tmp_path / "d.json"),
+            "--report", str(tmp_path / "r.html"), "--save-model", str(tmp_path / "model.json"),
+            "--horizons", "1,5", "--effects", "motor_strength,joint_damping,actuator_latency"]
+    assert diagnose_main(args) == 0
+    out = capsys.readouterr().out
+    assert "verdict: effect" in out and "motor_strength" in out
+    result = json.loads((tmp_path / "d.json").read_text())
+    assert result["verdict"] == "effect"
+    assert set(result["error"]) == {"1", "5"} and "joint_vel" in result["error"]["1"]
+    assert [r["name"] for r in result["ranking"]][0] == "motor_strength"
+    for key in ("name", "params", "free_parameters", "explained", "score"):
+        assert key in result["ranking"][0]
+    added = result["added"][0]
+    assert added["name"] == "motor_strength" and added["headline_after"] < added["headline_before"]
+    assert "summary" in result["where"] and "by_joint" in result["where"]
+    html = (tmp_path / "r.html").read_text()
+    assert "plotly" in html.lower() and "motor_strength" in html and "<script" in html
+    model = Model.load(tmp_path / "model.json")  # composes: the saved model is a starting point
+    assert model.effects[0].name == "motor_strength"
+    assert diagnose_main([str(data_dir), "--model", str(tmp_path / "model.json"), "--horizons", "1",
+                          "--effects", "motor_strength,joint_damping", "--json", str(tmp_path / "again.json")]) == 0
+    again = json.loads((tmp_path / "again.json").read_text())
+    assert again["verdict"] == "none" and again["headline_error"]["before"] < 0.2 * added["headline_before"]
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--add", "warp"], "unknown effect"),
+    (["--effects", "joint_damping,gravity"], "unknown effect"),
+    (["--model", "gazebo"], "neither a backend"),
+    (["--horizons", "1,x"], "--horizons"),
+])
+def test_cli_bad_input_is_one_line(tmp_path, capsys, args, message):
+    from acn.cli import diagnose_main
+
+    data_dir = tmp_path / "m"
+    data_dir.mkdir()
+    assert diagnose_main([str(data_dir), *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+
+
+def test_bad_measurements_are_refused(tmp_path, capsys, small_dataset):
+    from acn.cli import diagnose_main
+
+    (tmp_path / "model.json").write_text('{"backend": "mujoco", "effectz": []}')
+    assert diagnose_main([str(small_dataset), "--model", str(tmp_path / "model.json")]) == 2
+    assert "unknown key" in capsys.readouterr().err
+    assert diagnose_main([str(tmp_path / "nowhere")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    with pytest.raises(UserError, match="no target side"):
+        load_measurements(measured_path(tmp_path), side="target")
+
+
+def measured_path(tmp_path):
+    return record(CollectConfig(source="mujoco", target=None, policy="stand", episodes=1, seconds=0.2), tmp_path / "s")
+
+
+def test_measurements_at_another_rate_or_without_joints_are_one_line_errors(tmp_path, capsys):
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+    from robot_log import simulate
+
+    from acn.cli import diagnose_main, import_main
+
+    cols = simulate(LogSpec(seconds=0.5, episodes=1))
+    pacsv.write_csv(pa.table(cols), tmp_path / "log.csv")
+    # Imported as 25 Hz while the log is 50 Hz: every time step is wrong, nothing to diagnose.
+    assert import_main([str(tmp_path / "log.csv"), "--out", str(tmp_path / "ds"), "--control-hz", "25", "--kp", "60",
+                        "--kd", "1.5", "--torque-limit", "33.5"]) == 2
+    assert "nothing to import" in capsys.readouterr().err
+    # A dataset whose joint channels are all missing is refused by the diagnosis.
+    assert import_main([str(tmp_path / "log.csv"), "--out", str(tmp_path / "ok"), "--control-hz", "50", "--kp", "60",
+                        "--kd", "1.5", "--torque-limit", "33.5"]) == 0
+    info = json.loads((tmp_path / "ok" / "meta" / "info.json").read_text())
+    info["acn"]["missing_channels"] = [f"{j}_pos" for j in ("FR_hip", "FR_thigh", "FR_calf", "FL_hip", "FL_thigh",
+                                                            "FL_calf", "RR_hip", "RR_thigh", "RR_calf", "RL_hip",
+                                                            "RL_thigh", "RL_calf")]
+    (tmp_path / "ok" / "meta" / "info.json").write_text(json.dumps(info))
+    capsys.readouterr()
+    assert diagnose_main([str(tmp_path / "ok")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "joint positions and actions" in err[0], err

@@ -1,0 +1,115 @@
+"""acn-import: robot logs (CSV/Parquet) from code outside acn-collect become measurement datasets."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pacsv
+import pyarrow.parquet as pq
+import pytest
+from conftest import load
+from robot_log import LogSpec, simulate, write_log
+
+from acn.datasets.measurements import fill_derived, load_measurements
+from acn.toolkit.state import GROUPS, JOINT_NAMES, STATE_NAMES
+
+CONTROL = ["--control-hz", "50", "--kp", "60", "--kd", "1.5", "--torque-limit", "33.5"]
+
+
+@pytest.fixture
+def acn(capsys):
+    """Run a command line in this process: (exit status, stdout, stderr)."""
+    import acn.cli
+
+    def run(tool: str, *args: str) -> subprocess.CompletedProcess:
+        try:
+            code = getattr(acn.cli, f"{tool}_main")(list(args))
+        except SystemExit as e:  # argparse's own errors
+            code = e.code
+        out = capsys.readouterr()
+        return subprocess.CompletedProcess(args, code, out.out, out.err)
+
+    return run
+
+
+@pytest.fixture(scope="module")
+def log_rows():
+    return simulate(LogSpec(seconds=1.0, episodes=2, seed=5))
+
+
+def test_csv_with_renamed_scaled_columns_and_a_missing_channel(tmp_path, log_rows, acn):
+    """Degrees under other names are mapped back; the IMU is not logged: stored NaN, listed, not compared."""
+    spec = LogSpec(seconds=1.0, episodes=2, seed=5, drop=GROUPS["imu_acc"],
+                   rename={f"{j}_pos": (f"q{k}_deg", np.pi / 180) for k, j in enumerate(JOINT_NAMES)})
+    mapping = write_log(tmp_path / "log.csv", spec)
+    (tmp_path / "map.json").write_text(json.dumps(mapping))
+    r = acn("import", str(tmp_path / "log.csv"), "--out", str(tmp_path / "ds"), "--map", str(tmp_path / "map.json"),
+            *CONTROL)
+    assert r.returncode == 0, r.stderr
+    assert "imu_acc_x" in r.stdout and "98 transitions" in r.stdout  # 2 episodes x (50 rows - 1)
+    ds = load(tmp_path / "ds")
+    assert ds.num_frames == 98 and ds.num_episodes == 2
+    m = load_measurements(tmp_path / "ds")
+    assert m.missing == list(GROUPS["imu_acc"])
+    assert np.isnan(m.state[:, [STATE_NAMES.index(c) for c in GROUPS["imu_acc"]]]).all()
+    first = slice(0, 49)
+    q = m.state[first][:, [STATE_NAMES.index(f"{j}_pos") for j in JOINT_NAMES]]
+    want = np.column_stack([log_rows[f"{j}_pos"][:49] for j in JOINT_NAMES])
+    np.testing.assert_allclose(q, want, atol=1e-5)  # float32 storage
+    np.testing.assert_allclose(m.next_state[:48], m.state[1:49])  # s_{t+1} is the next row
+    info = ds.meta.info["acn"]
+    assert info["kp"] == 60 and info["control_hz"] == 50 and info["source"]["simulator"] == "log"
+
+
+def test_bad_rows_split_episodes_and_are_counted(tmp_path, log_rows, acn):
+    cols = {k: v.copy() for k, v in log_rows.items()}
+    cols["timestamp"][10:] += 0.013  # one time step of 33 ms instead of 20 ms
+    cols["FR_hip_pos"][30] = np.nan
+    cols.pop("FL_hip_vel")
+    pq.write_table(pa.table(cols), tmp_path / "log.parquet")
+    r = acn("import", str(tmp_path / "log.parquet"), "--out", str(tmp_path / "ds"), *CONTROL)
+    assert r.returncode == 0, r.stderr
+    assert "cut 1 row(s) with non-finite values" in r.stdout and "split at 1 wrong time step(s)" in r.stdout
+    m = load_measurements(tmp_path / "ds")
+    # episode 0 (50 rows) -> [0..9], [10..29], [31..49]; episode 1 -> one segment
+    assert sorted(np.bincount(m.episode).tolist()) == sorted([9, 19, 18, 49])
+    assert m.missing == ["FL_hip_vel"]
+    filled, derived = fill_derived(m)
+    assert derived == ["FL_hip_vel"] and np.isfinite(filled.state).all()
+    true = log_rows["FL_hip_vel"][:9]
+    assert np.abs(filled.state[:9, STATE_NAMES.index("FL_hip_vel")] - true).mean() < 0.5 * np.abs(true).mean() + 0.05
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda c: c.pop("action.FR_hip"), "action.FR_hip"),
+    (lambda c: c.pop("RL_calf_pos"), "RL_calf_pos"),
+    (lambda c: c.pop("timestamp"), "timestamp"),
+])
+def test_logs_without_the_minimum_are_refused(tmp_path, log_rows, change, message, acn):
+    cols = {k: v.copy() for k, v in log_rows.items()}
+    change(cols)
+    pacsv.write_csv(pa.table(cols), tmp_path / "log.csv")
+    r = acn("import", str(tmp_path / "log.csv"), "--out", str(tmp_path / "ds"), *CONTROL)
+    assert r.returncode == 2 and message in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert not (tmp_path / "ds").exists()
+
+
+def test_import_errors_are_one_line(tmp_path, log_rows, acn):
+    pacsv.write_csv(pa.table(log_rows), tmp_path / "log.csv")
+    (tmp_path / "bad.json").write_text('{"FR_knee_pos": "q0"}')
+    (tmp_path / "log.txt").write_text("x")
+    for args, message in [
+        ([str(tmp_path / "nope.csv")], "does not exist"),
+        ([str(tmp_path / "log.txt")], ".csv or .parquet"),
+        ([str(tmp_path / "log.csv"), "--map", str(tmp_path / "bad.json")], "not a channel"),
+        ([str(tmp_path / "log.csv"), "--control-hz", "0"], ">= 1"),
+        ([str(tmp_path / "log.csv"), "--control-hz", "25"], "nothing to import"),  # every step is a wrong one
+    ]:
+        extra = [] if "--control-hz" in args else CONTROL
+        ctl = CONTROL[2:] if "--control-hz" in args else []
+        r = acn("import", *args, "--out", str(tmp_path / "ds"), *extra, *ctl)
+        assert r.returncode == 2 and message in r.stderr and len(r.stderr.strip().splitlines()) == 1, (args, r.stderr)
+        assert not (tmp_path / "ds").exists()
