@@ -1,8 +1,9 @@
 """acn-view: the .rrd read back with Rerun's own dataframe API holds what the dataset holds.
 
-Real data (the session's small paired PyBullet -> MuJoCo dataset), real MuJoCo kinematics,
-real Rerun files; the corrector is a real frozen ``Corrector`` (fresh, so F = 0, or with a
-constant correction).
+Real data (the session's small paired PyBullet -> MuJoCo dataset, MuJoCo measurements with a
+hidden effect, an imported robot log lacking channels), real MuJoCo kinematics and
+re-simulation, real Rerun files; the corrector is a real frozen ``Corrector`` (fresh, so
+F = 0, or with a constant correction).
 """
 
 from __future__ import annotations
@@ -210,9 +211,7 @@ def _view_error(capsys, *argv: str) -> str:
     return err[0]
 
 
-def test_bad_input_is_one_line_and_exit_2(small_dataset, tmp_path, capsys, monkeypatch):
-    import json
-
+def test_bad_input_is_one_line_and_exit_2(small_dataset, tmp_path, capsys):
     assert "is not a LeRobot dataset" in _view_error(capsys, str(tmp_path))
     assert "is not a dataset directory" in _view_error(capsys, str(tmp_path / "missing"))
     assert "episode 5 does not exist" in _view_error(capsys, str(small_dataset), "--episodes", "0,5")
@@ -222,8 +221,151 @@ def test_bad_input_is_one_line_and_exit_2(small_dataset, tmp_path, capsys, monke
     torque = make_corrector(tmp_path / "torque", training_data={"action_mode": "torque"})
     assert "torque-mode" in _view_error(capsys, str(small_dataset), "--corrector", str(torque))
     assert "not a corrector directory" in _view_error(capsys, str(small_dataset), "--corrector", str(tmp_path))
-    (tmp_path / "model.json").write_text(json.dumps({}))
-    monkeypatch.setattr("acn.viz.view._diagnosis_available", lambda: False)
-    assert _view_error(capsys, str(small_dataset), "--model", str(tmp_path / "model.json")).endswith(
-        "--model needs acn-diagnose (not available yet)")
+    assert not list(tmp_path.glob("*.rrd")) and not list(tmp_path.glob(".*partial*"))
+
+
+# ----- the diagnosis view (--model, --diagnosis) -------------------------------------------------
+DAMPING = 0.5  # N m s/rad, the hidden effect and the model's
+
+
+def diagnosis_json() -> dict:
+    """An ``acn-diagnose --json`` result with the documented keys the view reads."""
+    return {"verdict": "effect", "reason": "joint_damping explains 97% of the error above the noise floor",
+            "where": {"summary": "At one step the model is worst in joint_vel; the error grows with joint speed."},
+            "ranking": [{"name": "joint_damping", "explained": 0.97, "significant": True},
+                        {"name": "armature", "explained": 0.1, "significant": False}],
+            "added": [{"name": "joint_damping", "headline_before": 0.21, "headline_after": 0.01}]}
+
+
+@pytest.fixture(scope="module")
+def hidden(tmp_path_factory):
+    """MuJoCo measurements with hidden joint damping, the model with that effect, its diagnosis,
+    and ``acn-view MEASURED --model MODEL.json --diagnosis D.json --save`` of them."""
+    import json
+
+    from acn.cli import view_main
+    from acn.datasets.record import record
+    from acn.toolkit.collector import CollectConfig
+    from acn.toolkit.effects import AppliedEffect, Model, get_effect
+
+    tmp = tmp_path_factory.mktemp("diagnosis")
+    damping = AppliedEffect(get_effect("joint_damping"), {"value": np.full(12, DAMPING)})
+    data = record(CollectConfig(source="mujoco", target=None, policy="excite", episodes=1, seconds=1.0, seed=1,
+                                hidden_effects=[damping]), tmp / "hidden")
+    model = Model("mujoco", [damping]).save(tmp / "hidden.model.json")
+    (tmp / "hidden.diagnosis.json").write_text(json.dumps(diagnosis_json()))
+    out = tmp / "hidden.rrd"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert view_main([str(data), "--model", str(model), "--diagnosis", str(tmp / "hidden.diagnosis.json"),
+                          "--save", str(out)]) == 0
+    return data, model, rr.dataframe.load_recording(out)
+
+
+def one_step(data, model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Independently: the model set to every measured state, the measured action applied.
+    Returns (frame of the prediction, measured s_{t+1}, predicted s_{t+1})."""
+    from acn.datasets.measurements import load_measurements
+    from acn.toolkit.effects import Model
+    from acn.toolkit.resim import Resimulator
+
+    m = load_measurements(data)
+    model = Model.load(model)
+    with Resimulator(model.backend, model.sim_config(m.control)) as sim:
+        pred = sim.run(m.state, m.action, m.previous_actions(np.arange(len(m)), 4))
+    assert not pred.diverged.any()
+    return m.frame + 1, m.next_state, pred.state[:, 0]
+
+
+def test_the_model_joint_series_is_its_one_step_prediction(hidden):
+    data, model, recording = hidden
+    frame, measured, predicted = one_step(data, model)
+    t = recording.view(index="frame", contents="/episode_000/joints/**").select().read_all()
+    logged_frames = t.column("frame").to_numpy()
+    assert set(frame) <= set(logged_frames) and 0 in logged_frames  # measured from frame 0, the model from 1
+    at = np.searchsorted(logged_frames, frame)
+    for j, joint in enumerate(JOINT_NAMES):
+        k = STATE_NAMES.index(f"{joint}_pos")
+        np.testing.assert_allclose(series(t, f"/episode_000/joints/{joint}/model")[at], predicted[:, k],
+                                   atol=1e-9, err_msg=joint)
+        assert np.isnan(series(t, f"/episode_000/joints/{joint}/model")[0])  # no prediction of frame 0
+    # the model's robot is drawn too, without contacts (they are not predicted)
+    entities = {c.entity_path for c in recording.schema().component_columns()}
+    assert {f"/episode_000/robots/model/links/{link}" for link in LINKS} <= entities
+    assert "/episode_000/robots/model/contacts" not in entities and "/episode_000/gait/model/FR" not in entities
+    assert "/episode_000/divergence/model/joint_pos" in entities
+
+
+def test_residuals_per_joint_are_measured_minus_predicted(hidden):
+    data, model, recording = hidden
+    frame, measured, predicted = one_step(data, model)
+    t = recording.view(index="frame", contents="/episode_000/residual/**").select().read_all()
+    at = np.searchsorted(t.column("frame").to_numpy(), frame)
+    for group in ("joint_pos", "joint_vel"):
+        for j, joint in enumerate(JOINT_NAMES):
+            k = STATE_NAMES.index(f"{joint}_{group.split('_')[1]}")
+            np.testing.assert_allclose(series(t, f"/episode_000/residual/{group}/{joint}")[at],
+                                       measured[:, k] - predicted[:, k], atol=1e-9, err_msg=f"{group} {joint}")
+
+
+def test_the_error_falls_when_the_hidden_effect_is_added(hidden):
+    _, _, recording = hidden
+    t = recording.view(index="frame", contents="/episode_000/effects/**").select().read_all()
+    nominal = series(t, "/episode_000/effects/0_nominal")
+    damped = series(t, "/episode_000/effects/1_joint_damping")
+    assert np.isfinite(nominal[1:]).all() and np.isfinite(damped[1:]).all()
+    rms = lambda x: np.sqrt(np.nanmean(x ** 2))  # noqa: E731
+    assert rms(nominal) > 0.05  # the nominal model misses the damping
+    assert rms(damped) < 0.01 * rms(nominal)  # the right effect at the right value: float32 storage is left
+    text = recording.view(index=None, contents="/episode_000/diagnosis").select_static().read_all()
+    doc = column(text, "/episode_000/diagnosis", "TextDocument:text")[0]
+    assert "verdict **effect**" in doc and "the error grows with joint speed" in doc
+    assert "| 1 | joint_damping | 97% | yes |" in doc and f"{rms(nominal):.4f}" in doc
+
+
+def test_an_imported_log_lacking_channels_is_compared_on_what_it_has(tmp_path):
+    """No IMU, no trunk linear velocity, no joint velocities: velocities are derived to start the
+    nominal model, and only measured channels get residuals."""
+    from robot_log import LogSpec, write_log
+
+    from acn.cli import import_main, view_main
+
+    dropped = GROUPS["imu_acc"] + GROUPS["base_linvel"] + GROUPS["joint_vel"]
+    write_log(tmp_path / "log.csv", LogSpec(seconds=1.0, episodes=1, seed=2, drop=dropped))
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert import_main([str(tmp_path / "log.csv"), "--out", str(tmp_path / "log"), "--control-hz", "50",
+                            "--kp", "60", "--kd", "1.5", "--torque-limit", "33.5"]) == 0
+        assert view_main([str(tmp_path / "log"), "--model", "mujoco", "--save", str(tmp_path / "log.rrd")]) == 0
+    rec = rr.dataframe.load_recording(tmp_path / "log.rrd")
+    entities = {c.entity_path for c in rec.schema().component_columns()}
+    assert {f"/episode_000/residual/joint_pos/{j}" for j in JOINT_NAMES} <= entities
+    assert not any("/residual/joint_vel/" in e for e in entities)
+    assert "/episode_000/joints/FR_calf/model" in entities and "/episode_000/effects/0_nominal" in entities
+    t = rec.view(index="frame", contents="/episode_000/effects/**").select().read_all()
+    assert np.isfinite(series(t, "/episode_000/effects/0_nominal")[1:]).all()
+    doc = column(rec.view(index=None, contents="/episode_000/diagnosis").select_static().read_all(),
+                 "/episode_000/diagnosis", "TextDocument:text")[0]
+    assert "Not measured, not compared: imu_acc (all 3)" in doc and "joint_vel (all 12)" in doc
+
+
+def test_bad_model_or_diagnosis_is_one_line_and_exit_2(small_dataset, tmp_path, capsys):
+    import json
+
+    def write(name: str, content) -> str:
+        (tmp_path / name).write_text(content if isinstance(content, str) else json.dumps(content))
+        return str(tmp_path / name)
+
+    ds = str(small_dataset)
+    unknown_key = write("extra.json", {"backend": "mujoco", "effects": [], "friction": 1})
+    assert "unknown key(s) 'friction'" in _view_error(capsys, ds, "--model", unknown_key)
+    bullet = write("bullet.json", {"backend": "bullet"})
+    assert "unknown backend 'bullet'" in _view_error(capsys, ds, "--model", bullet)
+    assert "neither a backend" in _view_error(capsys, ds, "--model", "drake")
+    assert "does not exist" in _view_error(capsys, ds, "--model", str(tmp_path / "none.json"))
+    good = write("good.json", {"backend": "mujoco"})
+    assert "--diagnosis needs --model" in _view_error(capsys, ds, "--diagnosis", write("d.json", diagnosis_json()))
+    for bad in ("{not json", {"verdict": "maybe", "reason": "", "ranking": [], "where": {"summary": ""}},
+                {**diagnosis_json(), "ranking": [{"name": "armature"}]}, [1, 2]):
+        message = _view_error(capsys, ds, "--model", good, "--diagnosis", write("bad.json", bad))
+        assert "is not valid JSON" in message or "is not an acn-diagnose --json result" in message, message
+    assert "does not exist" in _view_error(capsys, ds, "--model", good, "--diagnosis", str(tmp_path / "no.json"))
     assert not list(tmp_path.glob("*.rrd")) and not list(tmp_path.glob(".*partial*"))

@@ -9,11 +9,17 @@ Each episode's tab (entities: ``acn.viz.log``):
     +------------------------+------------------------------------------+
     | stance / swing bands   | divergence per channel group | extra ... |
     +------------------------+------------------------------------------+
+    | text (a diagnosis)     |                                          |
+    +------------------------+------------------------------------------+
 
-Extra panels (``EpisodeView.panels``, e.g. a diagnosis's residuals) join the bottom row.
+Extra time-series panels (``EpisodeView.panels``, e.g. a diagnosis's residuals) join the
+divergence panels at the bottom right, in two rows when there are more than three; text
+panels go under the stance / swing bands.
 """
 
 from __future__ import annotations
+
+import math
 
 import rerun.blueprint as rrb
 
@@ -36,10 +42,18 @@ def episode_tab(episode: EpisodeView) -> rrb.Container:
     bottom = [rrb.TimeSeriesView(origin=f"{root}/divergence/{t.name}",
                                  name=f"divergence {t.name} - {episode.reference}, per channel group")
               for t in episode.trajectories if episode.reference and t.name != episode.reference]
-    bottom += [rrb.TimeSeriesView(origin=f"{root}/{p.origin}", name=p.title) for p in episode.panels]
-    right = rrb.Vertical(joints, rrb.Horizontal(*bottom), row_shares=[3, 1.2]) if bottom else joints
-    return rrb.Horizontal(rrb.Vertical(robot, gait, row_shares=[3, 1]), right, column_shares=[1, 1.4],
-                          name=f"episode {episode.index}")
+    bottom += [rrb.TimeSeriesView(origin=f"{root}/{p.origin}", name=p.title,
+                                  plot_legend=rrb.PlotLegend(visible=p.legend))
+               for p in episode.panels if p.kind == "series"]
+    texts = [rrb.TextDocumentView(origin=f"{root}/{p.origin}", name=p.title)
+             for p in episode.panels if p.kind == "text"]
+    if len(bottom) > 3:  # two rows
+        right = rrb.Vertical(joints, rrb.Grid(*bottom, grid_columns=math.ceil(len(bottom) / 2)), row_shares=[3, 2.4])
+    else:
+        right = rrb.Vertical(joints, rrb.Horizontal(*bottom), row_shares=[3, 1.2]) if bottom else joints
+    left = rrb.Vertical(robot, gait, *texts, row_shares=[2.4, 0.9] + [2.7] * len(texts)) if texts else \
+        rrb.Vertical(robot, gait, row_shares=[3, 1])
+    return rrb.Horizontal(left, right, column_shares=[1, 1.4], name=f"episode {episode.index}")
 
 
 def build_blueprint(episodes: list[EpisodeView]) -> rrb.Blueprint:
@@ -48,6 +62,6 @@ def build_blueprint(episodes: list[EpisodeView]) -> rrb.Blueprint:
         rrb.Tabs(*[episode_tab(e) for e in episodes], active_tab=0),
         rrb.BlueprintPanel(state="collapsed"),
         rrb.SelectionPanel(state="collapsed"),
-        rrb.TimePanel(timeline="sim_time", state="expanded"),
+        rrb.TimePanel(timeline="sim_time", state="collapsed"),  # the play bar; the panels get the height
         auto_layout=False, auto_views=False,
     )

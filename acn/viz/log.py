@@ -14,11 +14,16 @@ Entity layout under an episode root ``episode_NNN`` (one subtree per episode):
 - ``gait/<trajectory>/<foot>``          stance band: a constant lane value while the foot is in
   contact, a gap (NaN) in swing.
 
+A trajectory without contact readings (a model's prediction) has no gait band and no contact
+markers; a channel group that is NaN throughout (not measured, not predicted) has no
+divergence series.
+
 Timelines: ``frame`` (index within the episode) and ``sim_time`` (s from the episode start),
 the same for every trajectory, so trajectories line up frame by frame.
 
 Further named series (``EpisodeView.series``, e.g. a diagnosis's residual per joint) go
-through ``log_series`` onto the same timelines, next to the measured ones.
+through ``log_series`` onto the same timelines, next to the measured ones; documents
+(``EpisodeView.documents``) are static markdown ``TextDocument``s.
 """
 
 from __future__ import annotations
@@ -89,11 +94,12 @@ def log_robot(rec: rr.RecordingStream, episode: EpisodeView, traj: Trajectory, k
                                                         quaternion=poses.quaternion[:, k]))
     log_meshes(rec, base, meshes, traj.color)
 
-    contact = state[:, SLICES["contact"]] > 0.5
-    rec.send_columns(f"{base}/contacts", indexes=times,
-                     columns=rr.Points3D.columns(positions=poses.foot[contact]).partition(contact.sum(axis=1)))
-    rec.log(f"{base}/contacts", rr.Points3D.from_fields(colors=[traj.color], radii=[CONTACT_MARKER_RADIUS]),
-            static=True)
+    if not np.isnan(state[:, SLICES["contact"]]).all():  # a prediction has no contact readings
+        contact = state[:, SLICES["contact"]] > 0.5
+        rec.send_columns(f"{base}/contacts", indexes=times,
+                         columns=rr.Points3D.columns(positions=poses.foot[contact]).partition(contact.sum(axis=1)))
+        rec.log(f"{base}/contacts", rr.Points3D.from_fields(colors=[traj.color], radii=[CONTACT_MARKER_RADIUS]),
+                static=True)
     rec.log(f"{base}/trunk_path", rr.LineStrips3D([state[:, SLICES["base_pos"]]], colors=[traj.color],
                                                    radii=[TRUNK_PATH_RADIUS]), static=True)
 
@@ -108,6 +114,8 @@ def log_joints(rec: rr.RecordingStream, episode: EpisodeView, traj: Trajectory) 
 
 def log_gait(rec: rr.RecordingStream, episode: EpisodeView, traj: Trajectory, lane: int) -> None:
     """Stance/swing band per foot: value ``foot + lane * GAIT_LANE_OFFSET`` in stance, gap in swing."""
+    if np.isnan(traj.state[:, SLICES["contact"]]).all():  # no contact readings (a prediction)
+        return
     contact = traj.state[:, SLICES["contact"]] > 0.5
     for f, foot in enumerate(FOOT_NAMES):
         band = np.where(contact[:, f], f + lane * GAIT_LANE_OFFSET, np.nan)
@@ -120,8 +128,11 @@ def log_divergence(rec: rr.RecordingStream, episode: EpisodeView, traj: Trajecto
     common, i, j = np.intersect1d(traj.frame, reference.frame, return_indices=True)
     d = state_difference(traj.state[i], reference.state[j])
     for group in GROUPS:
-        log_series(rec, f"{episode.root}/divergence/{traj.name}/{group}", episode, common,
-                   np.linalg.norm(d[:, SLICES[group]], axis=1), group, GROUP_COLORS[group])
+        norm = np.linalg.norm(d[:, SLICES[group]], axis=1)
+        if np.isnan(norm).all():  # not measured or not predicted
+            continue
+        log_series(rec, f"{episode.root}/divergence/{traj.name}/{group}", episode, common, norm, group,
+                   GROUP_COLORS[group])
 
 
 def log_episode(rec: rr.RecordingStream, episode: EpisodeView, kinematics: RobotKinematics,
@@ -137,4 +148,7 @@ def log_episode(rec: rr.RecordingStream, episode: EpisodeView, kinematics: Robot
             log_divergence(rec, episode, traj, reference)
     for series in episode.series:
         log_series(rec, f"{episode.root}/{series.path}", episode, series.frame, series.values, series.label,
-                   series.color)
+                   series.color, series.width)
+    for doc in episode.documents:
+        rec.log(f"{episode.root}/{doc.path}", rr.TextDocument(doc.text, media_type=rr.MediaType.MARKDOWN),
+                static=True)

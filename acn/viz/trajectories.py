@@ -2,7 +2,7 @@
 
 A ``Trajectory`` is one robot's states on (a subset of) an episode's frames: the recorded
 source and target of a paired dataset, the measured robot of an unpaired one, the target
-re-simulated under a corrector, and later the model's prediction of a diagnosis. Each gets
+re-simulated under a corrector, and the model's one-step prediction of a diagnosis. Each gets
 the same treatment (3D robot, joint series, gait band, divergence from the reference), so
 a new source of trajectories is one more ``Trajectory`` in ``EpisodeView.trajectories``.
 """
@@ -44,10 +44,13 @@ class Trajectory:
 
 @dataclass
 class Panel:
-    """An extra time-series panel of an episode's tab (entities under ``root/origin``)."""
+    """An extra panel of an episode's tab (entities under ``root/origin``): ``kind`` "series"
+    (a time-series panel, bottom row) or "text" (a markdown ``Document``, under the robot)."""
 
     title: str
     origin: str          # entity path relative to the episode root, e.g. "residual"
+    kind: str = "series"
+    legend: bool = True  # a time-series panel's legend
 
 
 @dataclass
@@ -59,6 +62,15 @@ class Series:
     values: np.ndarray   # (T,)
     frame: np.ndarray    # (T,) int, frame indices within the episode
     color: tuple[int, int, int] = OTHER_COLOR
+    width: float | None = None  # line width, ui points (None: Rerun's default)
+
+
+@dataclass
+class Document:
+    """A static markdown text of an episode (e.g. a diagnosis's verdict and ranking)."""
+
+    path: str            # entity path relative to the episode root, e.g. "diagnosis"
+    text: str            # markdown
 
 
 @dataclass
@@ -71,6 +83,7 @@ class EpisodeView:
     reference: str | None = None  # divergence of every other trajectory is measured from this one
     series: list[Series] = field(default_factory=list)
     panels: list[Panel] = field(default_factory=list)
+    documents: list[Document] = field(default_factory=list)
 
     @property
     def root(self) -> str:

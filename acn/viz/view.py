@@ -1,7 +1,10 @@
-"""``acn-view``: a dataset (and a corrector's closed loop) in the Rerun viewer, or in a ``.rrd``.
+"""``acn-view``: a dataset (a corrector's closed loop, a model's predictions) in the Rerun
+viewer, or in a ``.rrd``.
 
 Steps: read the dataset (``acn.datasets.reader.load_frames``) -> one ``EpisodeView`` per
-selected episode with its recorded trajectories (+ the corrected target with ``--corrector``)
+selected episode with its recorded trajectories (+ the corrected target with ``--corrector``;
++ the model's one-step prediction, residuals and error per added effect with ``--model``,
+``acn.viz.diagnosis``)
 -> log every episode columnar (``acn.viz.log``) -> one blueprint (``acn.viz.blueprint``) ->
 a spawned viewer, or a ``.rrd`` written all or nothing (temporary file, then rename).
 """
@@ -30,7 +33,8 @@ class ViewConfig:
     dataset: Path
     episodes: str | None = None     # "0,3,5"; None: every episode
     corrector: Path | None = None   # frozen corrector directory (acn-fit output)
-    model: Path | None = None       # MODEL.json of acn-diagnose (diagnosis view)
+    model: str | Path | None = None  # mujoco, pybullet or a MODEL.json of acn-diagnose (diagnosis view)
+    diagnosis: Path | None = None   # acn-diagnose --json result, shown as text with --model
     save: Path | None = None        # write this .rrd instead of opening the viewer
     mesh_cell: float = DEFAULT_CELL  # m, mesh simplification grid (0: original meshes)
 
@@ -48,14 +52,6 @@ def default_rrd_path(dataset: Path) -> Path:
     return dataset.parent / f"{dataset.resolve().name}.rrd"
 
 
-def _diagnosis_available() -> bool:
-    try:
-        import acn.toolkit.effects  # noqa: F401
-    except Exception:  # noqa: BLE001 - missing or broken: either way not available
-        return False
-    return True
-
-
 def load_corrector(directory: Path, frames: RecordedFrames):
     """A frozen corrector that fits this dataset, or a one-line ``UserError``."""
     from acn.models.corrector import CONFIG, Corrector
@@ -71,27 +67,27 @@ def load_corrector(directory: Path, frames: RecordedFrames):
     return Corrector.load(directory)
 
 
-def add_model_trajectories(model_path: Path, frames: RecordedFrames, episodes: list[EpisodeView]) -> None:
-    """The diagnosis view: measured against the identified model's prediction, residuals, errors.
+def add_model_trajectories(model_path: str | Path, frames: RecordedFrames, episodes: list[EpisodeView],
+                           diagnosis: Path | None = None) -> None:
+    """The diagnosis view (``acn.viz.diagnosis``): measured against the model's one-step
+    prediction, residuals per joint, the error as the model's effects are added, and the
+    ``acn-diagnose --json`` result ``diagnosis`` as text."""
+    from acn.viz.diagnosis import add_diagnosis_view
 
-    TODO(diagnosis): plug acn-diagnose in here. For each ``EpisodeView`` in ``episodes``:
-    - the model's prediction of the episode -> ``episode.trajectories.append(Trajectory("model",
-      "model (MODEL.json)", states, frames))``: the 3D robot, joint series against the measured
-      ones, gait band and divergence from the reference come for free (``acn.viz.log``);
-    - the residual per joint and the error before/after each added effect are extra series:
-      ``episode.series.append(Series("residual/<joint>", "<joint>", values, frames))`` and
-      ``Series("effects/<effect>", "+ <effect>", error, frames)`` (``acn.viz.log.log_series``
-      puts them on the same timelines), plus ``episode.panels.append(Panel("residual per
-      joint, rad", "residual"))`` / ``Panel("error after each added effect", "effects")`` so
-      the blueprint (``acn.viz.blueprint.episode_tab``) shows them in the bottom row.
-    """
-    raise UserError("--model: the diagnosis view is not wired to acn-diagnose yet")
+    add_diagnosis_view(model_path, frames, episodes, diagnosis)
 
 
 def prepare(cfg: ViewConfig) -> tuple[RecordedFrames, list[EpisodeView]]:
     """Read the dataset and build the trajectories of every selected episode."""
-    if cfg.model is not None and not _diagnosis_available():
-        raise UserError("--model needs acn-diagnose (not available yet)")
+    if cfg.diagnosis is not None and cfg.model is None:
+        raise UserError("--diagnosis needs --model (the model whose predictions are shown)")
+    if cfg.model is not None:  # bad model or diagnosis files fail before anything is read
+        from acn.toolkit.effects import Model
+        from acn.viz.diagnosis import load_diagnosis
+
+        Model.parse(cfg.model)
+        if cfg.diagnosis is not None:
+            load_diagnosis(cfg.diagnosis)
     if not Path(cfg.dataset).is_dir():
         raise UserError(f"{cfg.dataset} is not a dataset directory")
     frames = load_frames(cfg.dataset)
@@ -104,9 +100,7 @@ def prepare(cfg: ViewConfig) -> tuple[RecordedFrames, list[EpisodeView]]:
             ep.trajectories.append(corrected_target(frames, ep, corrector))
         episodes.append(ep)
     if cfg.model is not None:
-        if not Path(cfg.model).is_file():
-            raise UserError(f"model file {cfg.model} does not exist")
-        add_model_trajectories(cfg.model, frames, episodes)
+        add_model_trajectories(cfg.model, frames, episodes, cfg.diagnosis)
     return frames, episodes
 
 

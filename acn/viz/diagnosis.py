@@ -1,0 +1,270 @@
+"""The diagnosis view: measurements against a model (``acn-view MEASURED --model MODEL.json``).
+
+For every shown episode, from the measurements (``load_measurements``; the source side of a
+paired dataset; velocities a log lacks are derived from positions by ``fill_derived`` so the
+simulator can start, and are then not compared):
+
+- **the model's prediction** (trajectory ``model``): teacher-forced one step, i.e. the model set
+  to each measured state s_t (with the actions before t, for latency), the measured action
+  a_t applied; the predicted s_{t+1} is shown at frame t + 1 next to the measured s_{t+1}
+  (3D robot, joint panels, divergence model - measured; no contacts: they are not predicted);
+- **the residual per joint**, measured s_{t+1} - predicted s_{t+1} at frame t + 1, in physical
+  units: ``residual/joint_pos/<joint>`` (rad) and ``residual/joint_vel/<joint>`` (rad/s);
+- **the one-step error as effects are added**: for the model's effects E1..En in file order,
+  stage k predicts with ``Model(backend, effects[:k])`` (stage 0: the nominal backend); its
+  error at frame t + 1 is ``acn-diagnose``'s normalised RMS over the compared channels,
+  sqrt(mean_c ((measured - predicted)_c / spread_c)^2) with spread_c the std of channel c's
+  measured one-step change over the dataset (1 = as wrong as predicting no motion):
+  ``effects/<k>_<name>`` (``effects/0_nominal`` first);
+- **a text panel** ``diagnosis`` (markdown): the model, the mean error per stage, what was not
+  measured, and, with ``--diagnosis FILE.json`` (``acn-diagnose --json``), its verdict, reason,
+  ranking and where-summary.
+
+Every stage of one episode is re-simulated in one ``Resimulator.run`` call (one row per
+measured transition and stage, each row with its stage's model).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from acn.datasets.measurements import Measurements, load_measurements
+from acn.datasets.reader import RecordedFrames, state_difference
+from acn.errors import UserError
+from acn.toolkit.backends import BACKENDS
+from acn.toolkit.effects import Model
+from acn.toolkit.resim import Resimulator
+from acn.toolkit.state import FOOT_NAMES, GROUPS, JOINT_NAMES, SLICES, STATE_NAMES
+from acn.viz.trajectories import COLORS, Document, EpisodeView, Panel, Series, Trajectory
+
+VERDICTS = ("none", "effect", "unexplained")
+# What a simulator must be started from: the pose and the velocities (after ``fill_derived``).
+START_CHANNELS = np.concatenate([np.arange(SLICES[g].start, SLICES[g].stop) for g in
+                                 ("base_pos", "base_rpy", "joint_pos", "base_linvel", "base_angvel", "joint_vel")])
+RESIDUAL_GROUPS = {"joint_pos": ("joint position", "rad"), "joint_vel": ("joint velocity", "rad/s")}
+# Residual series colours: a hue per leg, lighter from hip to calf.
+LEG_COLORS = dict(zip(FOOT_NAMES, [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40)]))
+TYPE_LIGHTEN = {"hip": 0.0, "thigh": 0.3, "calf": 0.55}
+# Stage colours: the nominal model grey, the full model purple (as its trajectory), between them these.
+NOMINAL_COLOR = (127, 127, 127)
+STAGE_COLORS = [(255, 127, 14), (44, 160, 44), (214, 39, 40), (140, 86, 75), (227, 119, 194), (23, 190, 207)]
+STAGE_WIDTH = 2.0  # ui points
+
+
+@dataclass
+class Stage:
+    """One model of the effects ladder: the nominal backend plus the first k effects."""
+
+    key: str      # entity name, "<k>_<name>": 0_nominal, 1_joint_damping, ...
+    label: str    # legend text
+    model: Model
+
+
+@dataclass
+class StagePrediction:
+    """One episode's one-step predictions under every stage, at the predicted frames."""
+
+    frame: np.ndarray        # (N,) frame of the predicted state (the measured row's frame + 1)
+    measured: np.ndarray     # (N, 43) measured s_{t+1}
+    predicted: np.ndarray    # (S, N, 43) predicted s_{t+1} per stage (NaN where diverged or not started)
+    error: np.ndarray        # (S, N) normalised RMS over the compared channels (NaN where not predicted)
+    diverged: np.ndarray     # (S,) rows whose re-simulation blew up, per stage
+    skipped: int             # rows not re-simulated: the measured state is incomplete
+
+
+def joint_color(joint: str) -> tuple[int, int, int]:
+    leg, kind = joint.split("_")
+    base, t = np.array(LEG_COLORS[leg], float), TYPE_LIGHTEN[kind]
+    return tuple(int(round(x)) for x in base + t * (255 - base))
+
+
+def stage_color(k: int, count: int) -> tuple[int, int, int]:
+    if k == 0:
+        return NOMINAL_COLOR
+    if k == count - 1:
+        return COLORS["model"]
+    return STAGE_COLORS[(k - 1) % len(STAGE_COLORS)]
+
+
+def effect_stages(model: Model) -> list[Stage]:
+    """The nominal model, then the effects added one at a time in file order (the last: ``model``)."""
+    out = [Stage("0_nominal", f"{model.backend} (nominal)", Model(model.backend, [], model.corrector))]
+    for k, term in enumerate(model.effects, 1):
+        out.append(Stage(f"{k}_{term.name}", f"+ {term.name}",
+                         Model(model.backend, model.effects[:k], model.corrector)))
+    return out
+
+
+def load_diagnosis(path: str | Path) -> dict:
+    """An ``acn-diagnose --json`` result, checked for what the view reads; else a one-line error."""
+    p = Path(path)
+    if not p.is_file():
+        raise UserError(f"diagnosis file {p} does not exist")
+    try:
+        d = json.loads(p.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise UserError(f"{p} is not valid JSON: {e}") from None
+    what = (f"{p} is not an acn-diagnose --json result (it needs 'verdict' ({', '.join(VERDICTS)}), 'reason', "
+            "'ranking' with 'name' and 'explained', and 'where' with 'summary')")
+    if not isinstance(d, dict) or d.get("verdict") not in VERDICTS or not isinstance(d.get("reason"), str):
+        raise UserError(what)
+    if not isinstance(d.get("where"), dict) or not isinstance(d["where"].get("summary"), str):
+        raise UserError(what)
+    ranking = d.get("ranking")
+    if not isinstance(ranking, list) or not all(
+            isinstance(c, dict) and isinstance(c.get("name"), str) and isinstance(c.get("explained"), (int, float))
+            for c in ranking):
+        raise UserError(what)
+    return d
+
+
+def prepared_measurements(path: Path, model: Model, side: str = "source"):
+    """The measurements with derived velocities, and what the diagnosis compares: the
+    ``acn.models.diagnose.problem.Problem`` (channels, their spreads, previous actions per row)."""
+    from acn.models.diagnose.problem import DiagnoseConfig, prepare
+
+    data = load_measurements(path, side)
+    return prepare(data, model, DiagnoseConfig(horizons=(1,)))
+
+
+def predict_episode(problem, sim: Resimulator, stages: list[Stage], episode: int, corrector=None) -> StagePrediction:
+    """One-step predictions of one episode's transitions under every stage (one ``run`` call)."""
+    d: Measurements = problem.data
+    rows = np.flatnonzero(d.episode == episode)
+    rows = rows[np.argsort(d.frame[rows], kind="stable")]
+    start = np.isfinite(d.state[np.ix_(rows, START_CHANNELS)]).all(axis=1)
+    ok = rows[start]
+    s, n = len(stages), len(ok)
+    actions = d.action[ok]
+    if corrector is not None:
+        actions = corrector.correct(d.state[ok], actions)
+    pred = sim.run(np.tile(d.state[ok], (s, 1)), np.tile(actions, (s, 1)),
+                   np.tile(d.previous_actions(ok, problem.history), (s, 1, 1)), model=np.repeat(np.arange(s), n))
+    predicted = np.full((s, len(rows), len(STATE_NAMES)), np.nan)
+    predicted[:, start] = pred.state[:, 0].reshape(s, n, -1)
+    measured = d.next_state[rows]
+    residual = state_difference(measured[None], predicted)[..., problem.channels] / problem.scale[1]
+    with np.errstate(invalid="ignore"):
+        error = np.sqrt(np.mean(residual ** 2, axis=-1))  # NaN where a compared channel is missing
+    return StagePrediction(d.frame[rows] + 1, measured, predicted, error, pred.diverged.reshape(s, n).sum(axis=1),
+                           int((~start).sum()))
+
+
+def _rms(x: np.ndarray) -> float:
+    x = x[np.isfinite(x)]
+    return float(np.sqrt(np.mean(x ** 2))) if x.size else float("nan")
+
+
+def _missing_text(missing: list[str]) -> str:
+    """Channel names, a whole group said once."""
+    out, left = [], list(missing)
+    for group, names in GROUPS.items():
+        if names and all(n in left for n in names):
+            out.append(f"{group} (all {len(names)})")
+            left = [n for n in left if n not in names]
+    return ", ".join(out + left)
+
+
+def model_markdown(name: str, model: Model, measurements: str, episode: int, stages: list[Stage],
+                   p: StagePrediction, problem) -> str:
+    """The model part of the text panel: what is compared and the mean error per stage."""
+    means = [_rms(e) for e in p.error]
+    rows = [f"| {st.label} | {m:.4f} | {'' if k == 0 else f'{(m / means[0] - 1) * 100:+.1f} %'} | {int(dv)} |"
+            for k, (st, m, dv) in enumerate(zip(stages, means, p.diverged))]
+    legs = ", ".join(f"{leg} {hue}" for leg, hue in zip(FOOT_NAMES, ("blue", "orange", "green", "red")))
+    lines = [f"**Model** `{name}`: {model.describe()}", "",
+             f"**Measurements** {measurements}, episode {episode}: {len(p.frame)} transitions, each predicted one "
+             "step from the measured state (previous actions for latency, the measured action applied).", "",
+             "| model | one-step error | vs nominal | diverged |", "|---|---|---|---|", *rows, "",
+             f"One-step error: normalised RMS over the {len(problem.channels)} compared channels (1 = as wrong as "
+             "predicting no motion), mean over this episode. Residuals: measured - model (last row), joint position "
+             f"in rad, joint velocity in rad/s; colours {legs}, lighter from hip to calf."]
+    notes = []
+    if problem.data.missing:
+        notes.append(f"Not measured, not compared: {_missing_text(problem.data.missing)}.")
+    if problem.derived:
+        notes.append(f"Derived from positions to start the simulation, not compared: {_missing_text(problem.derived)}.")
+    if p.skipped:
+        notes.append(f"{p.skipped} transitions not predicted: their measured state is incomplete.")
+    return "\n".join(lines + ([""] + notes if notes else []))
+
+
+def diagnosis_markdown(name: str, d: dict) -> str:
+    """The ``acn-diagnose --json`` part of the text panel: verdict, reason, where, ranking, added."""
+    rows = [f"| {k} | {c['name']} | {c['explained']:.0%} | {'yes' if c.get('significant') else 'no'} |"
+            for k, c in enumerate(d["ranking"], 1)]
+    of = f" of {d['measurements']}" if isinstance(d.get("measurements"), str) else ""
+    lines = [f"**Diagnosis** `{name}`{of}: verdict **{d['verdict']}** ({d['reason']})", "",
+             f"**Where:** {d['where']['summary']}", "",
+             "| rank | effect | explained (of the error above the noise floor) | significant |", "|---|---|---|---|",
+             *rows]
+    added = [a for a in d.get("added") or [] if isinstance(a, dict) and "name" in a]
+    if added:
+        lines += ["", "**Added:** " + "; ".join(
+            f"{a['name']} (headline error {a.get('headline_before', float('nan')):.4f} -> "
+            f"{a.get('headline_after', float('nan')):.4f})" for a in added)]
+    return "\n".join(lines)
+
+
+def add_diagnosis_view(model_spec: str | Path, frames: RecordedFrames, episodes: list[EpisodeView],
+                       diagnosis: Path | None = None) -> None:
+    """Add the model's trajectory, residual and effects series, panels and text to ``episodes``
+    (see module docstring). ``model_spec``: a backend name or a model JSON file; a model's
+    corrector, if it names one, corrects the measured actions of every stage (as in
+    ``acn-diagnose``)."""
+    model = Model.parse(model_spec)
+    report = load_diagnosis(diagnosis) if diagnosis is not None else None
+    problem = prepared_measurements(frames.path, model)
+    stages = effect_stages(model)
+    corrector = None
+    if model.corrector:
+        from acn.models.corrector import Corrector
+
+        corrector = Corrector.load(model.corrector)
+    nominal = str(model_spec) in BACKENDS
+    name = model.backend if nominal else Path(model_spec).name
+    label = f"model ({model.backend}, nominal)" if nominal else f"model ({name})"
+    configs = [st.model.sim_config(problem.control) for st in stages]
+    compared = set(problem.channels.tolist())
+    with Resimulator(model.backend, configs, threads=problem.threads) as sim:
+        for ep in episodes:
+            p = predict_episode(problem, sim, stages, ep.index, corrector)
+            show_prediction(ep, p, stages, label, compared, problem.control.control_dt)
+            text = model_markdown(name, model, problem.data.description, ep.index, stages, p, problem)
+            if report is not None:
+                text += "\n\n" + diagnosis_markdown(Path(diagnosis).name, report)
+            ep.documents.append(Document("diagnosis", text))
+            ep.panels.append(Panel("diagnosis", "diagnosis", kind="text"))
+
+
+def show_prediction(ep: EpisodeView, p: StagePrediction, stages: list[Stage], label: str, compared: set[int],
+                    dt: float) -> None:
+    """The last stage as trajectory ``model``; residuals of the compared joint channels; the
+    error of every stage; their panels (error first: it is what a user looks for)."""
+    _extend_timeline(ep, p.frame, dt)
+    ep.trajectories.append(Trajectory("model", label, p.predicted[-1], p.frame))
+    for k, st in enumerate(stages):
+        ep.series.append(Series(f"effects/{st.key}", st.label, p.error[k], p.frame, stage_color(k, len(stages)),
+                                width=STAGE_WIDTH))
+    ep.panels.append(Panel("one-step error as effects are added, normalised RMS", "effects"))
+    residual = state_difference(p.measured, p.predicted[-1])
+    for group, (what, unit) in RESIDUAL_GROUPS.items():
+        shown = [j for j, joint in enumerate(JOINT_NAMES) if SLICES[group].start + j in compared]
+        for j in shown:
+            ep.series.append(Series(f"residual/{group}/{JOINT_NAMES[j]}", JOINT_NAMES[j],
+                                    residual[:, SLICES[group].start + j], p.frame, joint_color(JOINT_NAMES[j])))
+        if shown:  # 12 joints: no legend (colours are said in the text, names show on hover)
+            ep.panels.append(Panel(f"{what} residual (measured - model), {unit}", f"residual/{group}", legend=False))
+
+
+def _extend_timeline(episode: EpisodeView, frame: np.ndarray, dt: float) -> None:
+    """Timestamps for predicted frames past the last recorded one (s_{t+1} of the last row)."""
+    need = int(frame.max()) + 1 if len(frame) else 0
+    have = len(episode.timestamp)
+    if need > have:
+        last = episode.timestamp[-1] if have else -dt
+        episode.timestamp = np.concatenate([episode.timestamp, last + dt * np.arange(1, need - have + 1)])
