@@ -328,8 +328,11 @@ def view_parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", default=None, metavar="0,3,...", help="episodes to show (default: all)")
     p.add_argument("--corrector", type=Path, default=None,
                    help="frozen corrector directory (acn-fit output): also show the target re-simulated with it")
-    p.add_argument("--model", type=Path, default=None, metavar="MODEL.json",
-                   help="acn-diagnose model: measured against the model's prediction, residuals per joint")
+    p.add_argument("--model", default=None, metavar="MODEL.json",
+                   help="mujoco, pybullet or a model JSON (acn-diagnose --save-model): measured against the model's "
+                   "one-step prediction, residuals per joint, the error as the model's effects are added")
+    p.add_argument("--diagnosis", type=Path, default=None, metavar="FILE.json",
+                   help="acn-diagnose --json result: its verdict, ranking and where-summary as text (with --model)")
     p.add_argument("--save", type=Path, default=None, metavar="OUT.rrd", help="write a .rrd instead of opening a viewer")
     return p
 
@@ -341,7 +344,7 @@ def view_main(argv: list[str] | None = None) -> int:
         from acn.viz.view import ViewConfig, view
 
         path = view(ViewConfig(dataset=args.dataset, episodes=args.episodes, corrector=args.corrector,
-                               model=args.model, save=args.save))
+                               model=args.model, diagnosis=args.diagnosis, save=args.save))
         if path is not None:
             print(f"wrote {path}; open it with:")
             print(f"rerun {path}")
