@@ -26,6 +26,8 @@ demo: $(STAMP)
 	@echo "dataset: $(OUT)/trot_pb_mj (LeRobotDataset('acn/trot_pb_mj', root='$(OUT)/trot_pb_mj'), HF_HUB_OFFLINE=1)"
 	@echo "correctors: $(OUT)/acn_paper, $(OUT)/acn_mujoco_jacobian (acn.models.Corrector.load(DIR)); metrics.json inside"
 	$(BIN)/acn-view $(OUT)/trot_pb_mj --corrector $(OUT)/acn_mujoco_jacobian --save $(OUT)/trot_pb_mj.rrd
+	$(BIN)/acn-view $(OUT)/hidden --model $(OUT)/hidden.model.json --diagnosis $(OUT)/hidden.diagnosis.json --save $(OUT)/hidden.rrd
+	@echo "diagnosis view (measured vs model, residuals, error as effects are added): rerun $(OUT)/hidden.rrd"
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
