@@ -16,16 +16,26 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
-# Collect a small paired PyBullet -> MuJoCo dataset with the built-in trot, then fit the
-# paper's ACN and the well-posed MuJoCo-Jacobian variant on it and compare them.
+# Collect a small paired PyBullet -> MuJoCo dataset with the built-in trot, then fit the default
+# corrector (inverse: Gauss-Newton same-state labels; its evaluation prints both oracle bounds),
+# the paper's ACN and the MuJoCo-Jacobian variant on it and compare them.
 demo: $(STAMP)
 	$(BIN)/acn-collect --source pybullet --target mujoco --policy trot --episodes 12 --seconds 10 \
 		--seed 0 --workers 2 --out $(OUT)/trot_pb_mj --overwrite
-	$(BIN)/acn-fit $(OUT)/trot_pb_mj --variant paper --epochs 10 --out $(OUT)/acn_paper --overwrite
-	$(BIN)/acn-fit $(OUT)/trot_pb_mj --variant mujoco-jacobian --epochs 10 --out $(OUT)/acn_mujoco_jacobian --overwrite
+	$(BIN)/acn-fit $(OUT)/trot_pb_mj --variant inverse --out $(OUT)/acn_inverse --overwrite
+	$(BIN)/acn-fit $(OUT)/trot_pb_mj --variant paper --epochs 10 --no-oracles --out $(OUT)/acn_paper --overwrite
+	$(BIN)/acn-fit $(OUT)/trot_pb_mj --variant mujoco-jacobian --epochs 10 --no-oracles --out $(OUT)/acn_mujoco_jacobian --overwrite
 	@echo "dataset: $(OUT)/trot_pb_mj (LeRobotDataset('acn/trot_pb_mj', root='$(OUT)/trot_pb_mj'), HF_HUB_OFFLINE=1)"
-	@echo "correctors: $(OUT)/acn_paper, $(OUT)/acn_mujoco_jacobian (acn.models.Corrector.load(DIR)); metrics.json inside"
+	@echo "correctors: $(OUT)/acn_inverse (default), $(OUT)/acn_paper, $(OUT)/acn_mujoco_jacobian (acn.models.Corrector.load(DIR)); metrics.json inside"
 	$(BIN)/acn-view $(OUT)/trot_pb_mj --corrector $(OUT)/acn_mujoco_jacobian --save $(OUT)/trot_pb_mj.rrd
+	# Measurements with two hidden effects (the answer goes to $(OUT)/hidden.answer.json), then the diagnosis:
+	# compare, where, rank the catalogue, add effects while the error falls, report.
+	$(BIN)/acn-collect --source mujoco --policy excite --episodes 8 --seconds 10 --seed 3 --workers 2 \
+		--hidden-effect actuator_latency --hidden-effect joint_damping --out $(OUT)/hidden --overwrite
+	$(BIN)/acn-diagnose $(OUT)/hidden --model mujoco --auto --json $(OUT)/hidden.diagnosis.json \
+		--report $(OUT)/hidden.report.html --save-model $(OUT)/hidden.model.json
+	@echo "diagnosis: $(OUT)/hidden.report.html (HTML), $(OUT)/hidden.diagnosis.json, fitted model $(OUT)/hidden.model.json"
+	@echo "the hidden answer: $(OUT)/hidden.answer.json"
 	$(BIN)/acn-view $(OUT)/hidden --model $(OUT)/hidden.model.json --diagnosis $(OUT)/hidden.diagnosis.json --save $(OUT)/hidden.rrd
 	@echo "diagnosis view (measured vs model, residuals, error as effects are added): rerun $(OUT)/hidden.rrd"
 
@@ -37,6 +47,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/fit.py
 	$(BIN)/python benchmarks/view.py
 	$(BIN)/python benchmarks/ppo.py
+	$(BIN)/python benchmarks/diagnose.py
 
 clean:
 	rm -rf $(VENV) $(OUT)
