@@ -247,7 +247,7 @@ def ppo_parser() -> argparse.ArgumentParser:
     mode = p.add_mutually_exclusive_group(required=True)
     mode.add_argument("--timesteps", type=_positive_int, help="train for this many PyBullet control steps in all")
     mode.add_argument("--eval", type=Path, metavar="POLICY", help="evaluate a saved policy directory (DIR/policy)")
-    p.add_argument("--out", type=Path, help="run directory to create (training)")
+    p.add_argument("--out", type=Path, help="run directory to create (training); --eval: a JSON file to write")
     p.add_argument("--corrector", type=Path, default=None,
                    help="frozen corrector directory (acn-fit output); training: F until the first refit")
     p.add_argument("--refit-every", type=_nonneg_int, default=d.refit_every, help="episodes; 0: never refit")
@@ -306,16 +306,23 @@ def ppo_main(argv: list[str] | None = None) -> int:
 
 
 def _ppo_eval(args: argparse.Namespace) -> int:
-    if args.out is not None or args.resume or args.set:
-        raise UserError("--eval takes --corrector, --episodes, --seconds and --seed only")
+    if args.resume or args.set:
+        raise UserError("--eval takes --corrector, --episodes, --seconds, --seed, --oracle-episodes and --out only")
     if not args.eval.is_dir():
         raise UserError(f"policy directory {args.eval} does not exist")
     if args.corrector is not None and not args.corrector.is_dir():
         raise UserError(f"corrector directory {args.corrector} does not exist")
     from acn.models.ppo import evaluate_saved, format_table
 
+    if args.out is not None and args.out.exists() and not args.overwrite:
+        raise UserError(f"{args.out} exists (use --overwrite to replace it)")
     ev = evaluate_saved(args.eval, args.corrector, args.episodes, args.seconds, args.seed, args.oracle_episodes)
     print(format_table(ev))
+    if args.out is not None:
+        from acn.models.ppo import write_json
+
+        write_json(args.out, ev)
+        print(f"wrote {args.out}")
     return 0
 
 

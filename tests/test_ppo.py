@@ -45,17 +45,18 @@ def corrector_dir(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def tiny_run(corrector_dir, tmp_path_factory):
-    """1024 steps, then --resume to 2048; returns (run dir, policy tensors after part 1, given file hash before)."""
+    """1024 steps, then --resume to 1536; returns (run dir, policy tensors and metrics after part 1, the given
+    corrector's file hash before training)."""
     out = tmp_path_factory.mktemp("ppo_run") / "run"
     before = sha256(corrector_dir / "model.safetensors")
-    rc = ppo_main(["--timesteps", "1024", "--out", str(out), "--corrector", str(corrector_dir), "--refit-every", "8",
-                   "--eval-every", "8", *TINY])
+    rc = ppo_main(["--timesteps", "1024", "--out", str(out), "--corrector", str(corrector_dir), "--refit-every", "10",
+                   "--eval-every", "10", *TINY])
     assert rc == 0
     from safetensors.torch import load_file
 
     first = load_file(str(out / "policy" / "model.safetensors"))
     first_metrics = json.loads((out / "metrics.json").read_text())
-    rc = ppo_main(["--timesteps", "2048", "--out", str(out), "--resume"])
+    rc = ppo_main(["--timesteps", "1536", "--out", str(out), "--resume"])
     assert rc == 0
     return out, first, first_metrics, before
 
@@ -117,7 +118,7 @@ def test_tiny_run_trains_applies_a_frozen_corrector_and_writes_the_papers_metric
     m = json.loads((out / "metrics.json").read_text())
     for key in ("eps_transfer", "delta_corr"):
         assert set(m[key]) == {"mean", "mode", "expectation"} and all(np.isfinite(list(m[key].values())))
-    assert m["training"]["timesteps"] >= 2048 and m["training"]["episodes"] > first_metrics["training"]["episodes"]
+    assert m["training"]["timesteps"] >= 1536 and m["training"]["episodes"] > first_metrics["training"]["episodes"]
     # the corrector is applied (MuJoCo + F differs from MuJoCo) and stays frozen
     fin = m["final_evaluation"]
     assert fin["returns"]["mujoco_corrected"] != fin["returns"]["mujoco"] and len(fin["returns"]["pybullet"]) == 3
@@ -132,6 +133,14 @@ def test_tiny_run_trains_applies_a_frozen_corrector_and_writes_the_papers_metric
     refits = [c for c in m["correctors"] if c["source"] == "refit"]
     assert len(refits) >= 2 and (out / "corrector" / "model.safetensors").is_file()
     assert file_digest(out / "corrector") == m["correctors"][-1]["digest"]
+    # the same-state oracle bound: an optional field, filled where acn.models.evaluate offers the oracle
+    from acn.models import evaluate
+
+    if hasattr(evaluate, "same_state_oracle"):
+        o = m["same_state_oracle"]
+        assert o["episodes"] == 3 and np.isfinite(o["eps_transfer"]["mean"])
+    else:
+        assert m["same_state_oracle"] is None
     # Algorithm 2's evaluations and the plot
     assert len(m["evaluations"]) >= 3 and all("mujoco_corrected" in e["returns"] for e in m["evaluations"])
     png = (out / "curves.png").read_bytes()
@@ -168,13 +177,16 @@ def test_shared_policy_equals_the_sb3_actor_and_holds_no_pickle(tiny_run):
                                Trot()(states[0], t) + policy.env.residual_scale * policy.residual(states[0]), atol=1e-9)
 
 
-def test_eval_reloads_policy_and_corrector(tiny_run, capsys):
+def test_eval_reloads_policy_and_corrector(tiny_run, capsys, tmp_path):
     out = tiny_run[0]
     rc = ppo_main(["--eval", str(out / "policy"), "--corrector", str(out / "corrector"), "--episodes", "20",
-                   "--seconds", "0.3"])
+                   "--seconds", "0.3", "--out", str(tmp_path / "eval.json")])
     text = capsys.readouterr().out
     assert rc == 0 and "eps_transfer (per step)" in text and "delta_corr (per episode)" in text
     assert "+- " in text and "20 episodes" in text
+    ev = json.loads((tmp_path / "eval.json").read_text())
+    assert all(len(ev["returns"][run]) == 20 for run in ("pybullet", "mujoco", "mujoco_corrected"))
+    assert ev["eps_transfer"]["n"] == 20 and np.isfinite(ev["gap"]["closer_by"]["stderr"])
 
 
 # ----- bad input --------------------------------------------------------------------------

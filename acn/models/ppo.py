@@ -36,6 +36,7 @@ return is a sum of negative rewards), so a PPO that maximises them learns not to
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import math
@@ -312,6 +313,18 @@ def load_corrector(directory: str | Path, env: EnvConfig) -> Corrector:
 RUNS = ("pybullet", "mujoco", "mujoco_corrected")
 
 
+@contextlib.contextmanager
+def torch_threads(n: int):
+    """Run with ``n`` torch intra-op threads, then restore. Per-step inference on one row gains
+    nothing from threads and, on a busy CPU, loses a lot (measured: 2 threads 6x slower than 1)."""
+    old = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(old)
+
+
 def _episode(env: A1Env, policy: WalkingPolicy, s0: np.ndarray) -> tuple[np.ndarray, str, float]:
     """(per-step paper rewards, how it ended, mean forward speed m/s) of one closed-loop episode."""
     obs, _ = env.reset(options={"state": s0})
@@ -359,6 +372,12 @@ def evaluate_transfer(policy: WalkingPolicy, corrector: Corrector | None, episod
     ``oracle_episodes`` > 0: also the same-state oracle on the first that-many starts (OPTIONAL,
     ``same_state_oracle_rewards``; ``None`` in the result where it is not available).
     """
+    with torch_threads(1):
+        return _evaluate_transfer(policy, corrector, episodes, seconds, seed, oracle_episodes)
+
+
+def _evaluate_transfer(policy: WalkingPolicy, corrector: Corrector | None, episodes: int, seconds: float, seed: int,
+                       oracle_episodes: int) -> dict:
     env_cfg = replace(policy.env, seconds=seconds, reward_weights=REWARD_WEIGHTS, alive_bonus=0.0)
     init = CollectConfig(seed=seed + HELD_OUT_SEED_OFFSET, init_noise=env_cfg.init_noise, sim=env_cfg.sim)
     states = [initial_state(init, i) for i in range(episodes)]
@@ -445,7 +464,8 @@ def format_table(ev: dict) -> str:
     o = ev.get("same_state_oracle")
     if o:
         c = o["eps_transfer_corrector_same_episodes"]
-        lines.append(f"same-state oracle bound, first {o['episodes']} episodes: eps_transfer {o['eps_transfer']['mean']:.2f}"
+        lines.append(f"same-state oracle bound, first {o['episodes']} episodes ({o['full_length_episodes']} reached the "
+                     f"time limit): eps_transfer {o['eps_transfer']['mean']:.2f} +- {o['eps_transfer']['std']:.2f}"
                      f" (uncorrected {o['eps_transfer_uncorrected_same_episodes']['mean']:.2f}"
                      + (f", corrector {c['mean']:.2f})" if c else ")"))
     else:
@@ -655,8 +675,11 @@ class Trainer:
 
     # ----- the run -----------------------------------------------------------------------
     def run(self) -> dict:
+        with torch_threads(self.cfg.torch_threads):
+            return self._run()
+
+    def _run(self) -> dict:
         cfg, st = self.cfg, self.state
-        torch.set_num_threads(cfg.torch_threads)
         t_start = time.perf_counter()
         self.norm = make_vec_env(cfg)
         resumed = (self.ckpt / "ppo.zip").is_file() and st.timesteps > 0
@@ -689,9 +712,9 @@ class Trainer:
             shutil.rmtree(final_dir, ignore_errors=True)
             shutil.copytree(self.out / self.state.correctors[-1]["dir"], final_dir)
         metrics = self.metrics(final, time.perf_counter() - t_start)
-        _write_json(self.out / "metrics.json", metrics)
+        write_json(self.out / "metrics.json", metrics)
         plot_curves(self.state, final, self.out / "curves.png")
-        _write_json(self.ckpt / "state.json", {"config": asdict(cfg), "state": asdict(st)})
+        write_json(self.ckpt / "state.json", {"config": asdict(cfg), "state": asdict(st)})
         return metrics
 
     def metrics(self, final: dict, wall: float) -> dict:
@@ -787,7 +810,9 @@ def _json_default(o):
     raise TypeError(type(o))
 
 
-def _write_json(path: Path, data: dict) -> None:
+def write_json(path: str | Path, data: dict) -> None:
+    """JSON (numpy scalars and arrays as numbers and lists), written to a temporary and renamed."""
+    path = Path(path)
     tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
     tmp.write_text(json.dumps(data, indent=2, default=_json_default))
     os.replace(tmp, path)
@@ -812,18 +837,24 @@ def plot_curves(state: RunState, final: dict | None, path: Path) -> None:
     colours = {"pybullet": "tab:blue", "mujoco": "tab:red", "mujoco_corrected": "tab:green"}
     labels = {"pybullet": "PyBullet", "mujoco": "MuJoCo", "mujoco_corrected": "MuJoCo + corrector"}
     for run in RUNS:
-        pts = [(e["timesteps"], np.mean(e["returns"][run]), np.std(e["returns"][run]))
-               for e in state.evaluations if run in e["returns"]]
+        evs = [e for e in state.evaluations if run in e["returns"]]
+        pts = [(e["timesteps"], np.mean(e["returns"][run]), np.std(e["returns"][run])) for e in evs]
         if pts:
             x, y, s = map(np.array, zip(*pts))
             b.plot(x, y, "o-", color=colours[run], label=labels[run])
             b.fill_between(x, y - s, y + s, color=colours[run], alpha=0.15)
+        for e in evs + ([final] if final is not None and run in final["returns"] else []):
+            fell = e["ends"][run]["fell"] + e["ends"][run]["diverged"]
+            if fell:  # a fall ends the sum of negative rewards early: say so beside the point
+                b.annotate(f"{fell}/{len(e['returns'][run])} fell", (e["timesteps"], np.mean(e["returns"][run])),
+                           textcoords="offset points", xytext=(4, 6), fontsize=7, color=colours[run])
         if final is not None and run in final["returns"]:
             r = np.array(final["returns"][run])
             b.errorbar([final["timesteps"]], [r.mean()], yerr=[r.std()], fmt="D", color=colours[run], capsize=4,
                        label=f"{labels[run]}, final ({len(r)} episodes)")
     b.set(title="evaluation, same initial states (paper's reward, mean +- std)", xlabel="timesteps",
           ylabel="episode return")
+    b.margins(x=0.08)
     b.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
