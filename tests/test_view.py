@@ -347,6 +347,19 @@ def test_an_imported_log_lacking_channels_is_compared_on_what_it_has(tmp_path):
     assert "Not measured, not compared: imu_acc (all 3)" in doc and "joint_vel (all 12)" in doc
 
 
+def test_a_log_without_trunk_pose_cannot_be_predicted_one_line(tmp_path, capsys):
+    from robot_log import LogSpec, write_log
+
+    from acn.cli import import_main
+
+    no_trunk = GROUPS["base_pos"] + GROUPS["base_rpy"]
+    write_log(tmp_path / "log.csv", LogSpec(seconds=0.5, episodes=1, seed=2, drop=no_trunk))
+    assert import_main([str(tmp_path / "log.csv"), "--out", str(tmp_path / "log"), "--control-hz", "50", "--kp", "60",
+                        "--kd", "1.5", "--torque-limit", "33.5"]) == 0
+    capsys.readouterr()
+    assert "needs the full pose" in _view_error(capsys, str(tmp_path / "log"), "--model", "mujoco")
+
+
 def test_bad_model_or_diagnosis_is_one_line_and_exit_2(small_dataset, tmp_path, capsys):
     import json
 
