@@ -56,6 +56,43 @@ _positive_float = _number(float, 0, inclusive=False)
 _nonneg_float = _number(float, 0, inclusive=True)
 
 
+# ----------------------------------------------------------------------------- --ray (optional extra)
+def _add_ray_arguments(p: argparse.ArgumentParser, what: str) -> None:
+    p.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
+                   help=f"run {what} on Ray: alone, a local Ray instance (this machine's CPUs or --ray-cpus); "
+                   "ADDRESS (auto, or HOST:PORT from `ray start --head`) joins a cluster; needs pip install -e '.[ray]'")
+    p.add_argument("--ray-cpus", type=_positive_int, default=None, metavar="N",
+                   help="--ray without ADDRESS: CPUs of the local Ray instance (default: all of this machine's)")
+
+
+def _ray_config(args: argparse.Namespace):
+    """``--ray [ADDRESS]`` and ``--ray-cpus`` as a ``RayConfig`` (None: no Ray); one-line errors."""
+    if args.ray is None:
+        if args.ray_cpus is not None:
+            raise UserError("--ray-cpus needs --ray")
+        return None
+    if args.ray and Path(args.ray).exists():
+        raise UserError(f"--ray took {args.ray!r} as a cluster address; write --ray=ADDRESS or put --ray after it")
+    from acn.toolkit.parallel import RayConfig, import_ray
+
+    import_ray()
+    config = RayConfig(address=args.ray or None, cpus=args.ray_cpus)
+    config.validate()
+    return config
+
+
+def _ray_executor(args: argparse.Namespace):
+    """The Ray executor for re-simulation batches (``acn.toolkit.parallel``), or a no-op."""
+    import contextlib
+
+    config = _ray_config(args)
+    if config is None:
+        return contextlib.nullcontext()
+    from acn.toolkit.parallel import ray_executor
+
+    return ray_executor(config.address, config.cpus)
+
+
 # ----------------------------------------------------------------------------- acn-collect
 def collect_parser() -> argparse.ArgumentParser:
     from acn.toolkit.backends import ACTION_MODES, BACKENDS
@@ -89,6 +126,9 @@ def collect_parser() -> argparse.ArgumentParser:
                    help="apply a physical effect to the source (the measured robot) at a realistic magnitude "
                    "(random: a random catalogue effect); the answer goes to OUT.answer.json, never into the "
                    "dataset; repeat for several effects")
+    _add_ray_arguments(p, "the episodes (one Ray task each, written in episode order)")
+    p.add_argument("--shards", type=_positive_int, default=1, metavar="K",
+                   help="with --ray: K writers in parallel (contiguous episode ranges), merged into --out")
     return p
 
 
@@ -136,6 +176,12 @@ def collect_main(argv: list[str] | None = None) -> int:
         cfg = collect_config_from_args(args)
         if args.out.exists() and not args.overwrite:
             raise UserError(f"output directory {args.out} exists (use --overwrite to replace it)")
+        ray = _ray_config(args)
+        if ray is None and args.shards > 1:
+            raise UserError("--shards needs --ray (the shards are written by Ray tasks)")
+        if ray is not None and args.workers > 1:
+            raise UserError("--workers sets this machine's processes; with --ray, Ray places the work "
+                            "(--ray-cpus for a local instance)")
         counts: dict[str, int] = {}
 
         def progress(ep) -> None:
@@ -143,7 +189,8 @@ def collect_main(argv: list[str] | None = None) -> int:
             print(f"episode {sum(counts.values())}/{cfg.episodes}: {len(ep)} steps, {ep.end}", file=sys.stderr)
 
         try:
-            path = record(cfg, args.out, workers=args.workers, overwrite=args.overwrite, on_episode=progress)
+            path = record(cfg, args.out, workers=args.workers, overwrite=args.overwrite, on_episode=progress,
+                          ray=ray, shards=args.shards)
         except Interrupted as e:
             where = f"kept {e.episodes} finished episode(s) in {e.path}" if e.path else "nothing was written"
             print(f"acn-collect: interrupted; {where}", file=sys.stderr)
@@ -191,6 +238,7 @@ def fit_parser() -> argparse.ArgumentParser:
     p.add_argument("--eval-episodes", type=_nonneg_int, default=d.eval_episodes,
                    help="closed-loop evaluation episodes from held-out initial states (0: skip)")
     p.add_argument("--eval-seconds", type=_positive_float, default=d.eval_seconds)
+    _add_ray_arguments(p, "the re-simulation batches (Jacobians, labels; rows in chunks)")
     return p
 
 
@@ -210,7 +258,8 @@ def fit_main(argv: list[str] | None = None) -> int:
                         filter_percentile=args.filter_percentile, val_fraction=args.val_fraction, seed=args.seed,
                         device=args.device, precision=args.precision, jacobian_eps=args.jacobian_eps, eval_episodes=args.eval_episodes,
                         eval_seconds=args.eval_seconds)
-        model, metrics = fit(args.datasets, cfg, log=lambda line: print(line, file=sys.stderr))
+        with _ray_executor(args):
+            model, metrics = fit(args.datasets, cfg, log=lambda line: print(line, file=sys.stderr))
         path = save(model, metrics, args.out, overwrite=args.overwrite)
         _print_fit_summary(metrics, path)
         return 0
@@ -426,6 +475,7 @@ def diagnose_parser() -> argparse.ArgumentParser:
     p.add_argument("--horizons", default=",".join(map(str, d.horizons)), help="open-loop horizons, control steps")
     p.add_argument("--effects", default=None, help="comma-separated candidates (default: the whole catalogue)")
     p.add_argument("--seed", type=_nonneg_int, default=d.seed)
+    _add_ray_arguments(p, "the re-simulation batches (measured states, candidate fits; rows in chunks)")
     return p
 
 
@@ -459,8 +509,8 @@ def diagnose_main(argv: list[str] | None = None) -> int:
         data = load_measurements(args.measured, side=args.side)
         from tqdm import tqdm
 
-        with tqdm(total=100, file=sys.stderr, bar_format="{l_bar}{bar}| {elapsed} {postfix}",
-                  disable=None) as bar:
+        with _ray_executor(args), tqdm(total=100, file=sys.stderr, bar_format="{l_bar}{bar}| {elapsed} {postfix}",
+                                       disable=None) as bar:
             def say(message: str, fraction: float | None = None) -> None:
                 bar.set_description_str(message)
                 if fraction is not None:

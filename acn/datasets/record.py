@@ -4,7 +4,10 @@ Simulation runs in ``workers`` child processes, each building its simulators onc
 streaming finished episodes back; the parent only writes, in episode order, so the dataset
 does not depend on the number of workers and writing overlaps simulation. Each child runs
 ``PairedRollout.episode`` over its share of indices; ``collect_episodes(config, indices)`` is
-the same work as one pure call, for a distributed engine (Ray) to run instead.
+the same work as one pure call, which Ray runs instead with ``ray=RayConfig(...)``
+(``acn.toolkit.parallel.episodes_on_ray``: one task per episode, consumed in episode order by
+the same writer loop, so the dataset is byte-identical to a local one with the same seed).
+``shards=K`` (Ray only) writes K datasets in parallel and merges them (``acn.datasets.shards``).
 
 Ctrl-C or SIGTERM stops the collection: the finished episodes are committed as a valid
 dataset (or nothing is written if none finished) and ``Interrupted`` is raised.
@@ -17,13 +20,17 @@ import queue
 import signal
 from dataclasses import asdict
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import TYPE_CHECKING, Callable, Iterator, Sequence
 
 from acn.datasets import schema
 from acn.datasets.writer import DatasetWriter
+from acn.errors import UserError
 from acn.toolkit.backends import simulator_version
 from acn.toolkit.collector import FALL_RULE, CollectConfig, Episode, PairedRollout
 from acn.toolkit.state import ACTION_NAMES, STATE_NAMES
+
+if TYPE_CHECKING:  # pragma: no cover
+    from acn.toolkit.parallel import RayConfig
 
 # Children are forked from a clean server process that has imported the simulators once.
 _CTX = mp.get_context("forkserver")
@@ -86,14 +93,14 @@ def _simulate(cfg: CollectConfig, indices: list[int], results) -> None:
         results.put(e)
 
 
-def _episodes_in_order(cfg: CollectConfig, workers: int, procs: list) -> Iterator[Episode]:
+def _episodes_in_order(cfg: CollectConfig, indices: Sequence[int], workers: int, procs: list) -> Iterator[Episode]:
     results = _CTX.Queue()
     for w in range(workers):
-        p = _CTX.Process(target=_simulate, args=(cfg, list(range(w, cfg.episodes, workers)), results), daemon=True)
+        p = _CTX.Process(target=_simulate, args=(cfg, list(indices[w::workers]), results), daemon=True)
         p.start()
         procs.append(p)
     pending: dict[int, Episode] = {}
-    for next_index in range(cfg.episodes):
+    for next_index in indices:
         while next_index not in pending:
             try:
                 item = results.get(timeout=1.0)
@@ -113,30 +120,59 @@ def _raise_interrupt(signum, frame):
 
 
 def record(cfg: CollectConfig, out: str | Path, workers: int = 1, overwrite: bool = False,
-           on_episode: Callable[[Episode], None] | None = None) -> Path:
-    """Collect ``cfg.episodes`` episodes and write them to ``out``; returns the dataset path."""
+           on_episode: Callable[[Episode], None] | None = None, ray: "RayConfig | None" = None,
+           shards: int = 1, indices: Sequence[int] | None = None) -> Path:
+    """Collect ``cfg.episodes`` episodes and write them to ``out``; returns the dataset path.
+
+    ``ray``: simulate on Ray (a local instance or a cluster) instead of ``workers`` processes;
+    ``shards``: with ``ray``, K writers in parallel merged into one dataset (``on_episode`` then
+    sees a ``ShardEpisode`` as each shard writes it, shards interleaved). ``indices``: the
+    collection indices to run (default all ``cfg.episodes``; a shard runs a contiguous part).
+    """
     cfg.validate()
     if workers < 1:
         raise ValueError(f"--workers must be >= 1, got {workers}")
-    workers = min(workers, cfg.episodes)
+    if shards < 1:
+        raise ValueError(f"--shards must be >= 1, got {shards}")
+    indices = range(cfg.episodes) if indices is None else indices
+    if ray is not None:
+        from acn.toolkit import parallel
+
+        with parallel.ray_session(ray):
+            if shards > 1:
+                from acn.datasets.shards import record_shards
+
+                return record_shards(cfg, out, shards, ray, overwrite=overwrite, on_episode=on_episode)
+            return _record(cfg, out, parallel.episodes_on_ray(cfg, indices), [], overwrite, on_episode)
+    if shards > 1:
+        raise UserError("--shards needs --ray (the shards are written by Ray tasks)")
+    workers = min(workers, len(indices))
+    procs: list = []
+    return _record(cfg, out, _episodes_in_order(cfg, indices, workers, procs), procs, overwrite, on_episode)
+
+
+def _record(cfg: CollectConfig, out: str | Path, episodes: Iterator[Episode], procs: list, overwrite: bool,
+            on_episode: Callable[[Episode], None] | None) -> Path:
+    """The writer loop: ``episodes`` (in order, from processes or Ray) into one dataset at ``out``."""
     task = f"{cfg.policy} ({cfg.source}" + (f" -> {cfg.target})" if cfg.target else ")")
     writer = DatasetWriter(out, fps=int(round(1.0 / cfg.sim.control_dt)), paired=cfg.paired, task=task,
                            acn_meta=collection_metadata(cfg), overwrite=overwrite)
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
-    procs: list = []
     try:
-        for ep in _episodes_in_order(cfg, workers, procs):
+        for ep in episodes:
             writer.write(ep)
             if on_episode:
                 on_episode(ep)
     except KeyboardInterrupt:
         _stop(procs)
+        episodes.close()  # Ray: cancels the tasks still running
         path = _commit_quietly(writer, cfg) if writer.num_episodes else None
         if path is None:
             writer.abort()
         raise Interrupted(path, writer.num_episodes) from None
     except BaseException:
         _stop(procs)
+        episodes.close()
         writer.abort()
         raise
     finally:

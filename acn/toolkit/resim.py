@@ -23,6 +23,7 @@ from typing import Sequence
 
 import numpy as np
 
+from acn.toolkit import parallel
 from acn.toolkit.actuation import Actuation
 from acn.toolkit.backends import SimConfig, SimulationDiverged, make_backend
 from acn.toolkit.state import ACTION_DIM, SLICES, STATE_DIM
@@ -92,6 +93,9 @@ class Resimulator:
                          np.full((n, actions.shape[1], ACTION_DIM), np.nan), np.zeros(n, dtype=bool))
         if n == 0:
             return out
+        ray = parallel.active_executor()  # Ray (acn.toolkit.parallel): large batches in chunks, same result
+        if ray is not None and ray.takes(self.backend, n, actions.shape[1]):
+            return ray.resimulate(self.backend, self.configs, states, actions, previous, index)
         if self.backend == "mujoco":
             self._run_mujoco(index, states, actions, previous, out)
             return out

@@ -1,0 +1,163 @@
+"""``--shards K``: K datasets written in parallel on Ray, merged into one by lerobot's aggregation.
+
+The collection indices 0..N-1 are split into K contiguous ranges. Shard k is written by one
+Ray task pinned to the driver's node (the shards and ``out`` share its disk; the writer is the
+part that needs it), which runs ``record`` for its range: its episodes are simulated as Ray
+tasks anywhere in the cluster and written in order by the shard's own writer. Then
+``lerobot.datasets.aggregate.aggregate_datasets`` merges the shards, in order, into a hidden
+directory beside ``out`` that is renamed into place, and the ``acn`` block of
+``meta/info.json`` (the collection's metadata and every episode with its collection index, in
+order) is rebuilt from the shards'. Frame values equal an unsharded collection's; the files
+do not (lerobot rewrites the rows with pandas and aggregates the shards' statistics).
+
+Ctrl-C or SIGTERM: every shard task is cancelled, each commits the episodes it finished (as
+``record`` does), and those are merged: a valid dataset of the finished episodes, or nothing.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import shutil
+import signal
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from acn.atomic import move_into_place, temporary_beside
+from acn.datasets import schema
+from acn.datasets.record import Interrupted, _commit_quietly, _raise_interrupt, record
+from acn.toolkit.collector import CollectConfig
+from acn.toolkit.parallel import RayConfig, _remote, _unwrap, import_ray
+
+CANCEL_WAIT_S = 120.0  # after an interrupt, how long the shards get to commit what they finished
+
+
+@dataclass
+class ShardEpisode:
+    """An episode of the merged dataset as its metadata lists it (for progress callbacks)."""
+
+    index: int     # collection index
+    length: int    # frames
+    end: str
+
+    def __len__(self) -> int:
+        return self.length
+
+
+def _write_shard(cfg: CollectConfig, indices: list[int], path: str, ray_config: RayConfig, progress) -> int:
+    """Ray task: write the shard of ``indices`` at ``path``, each written episode reported to
+    the ``progress`` queue; returns its finished episodes."""
+    def report(ep) -> None:
+        progress.put((ep.index, len(ep), ep.end))
+
+    try:
+        record(cfg, path, ray=ray_config, indices=indices, on_episode=report)
+    except Interrupted as e:
+        return e.episodes
+    return len(indices)
+
+
+def merged_acn_metadata(blocks: list[dict]) -> dict:
+    """The ``acn`` block of the merged dataset from the shards' blocks, in shard order."""
+    merged = {k: v for k, v in blocks[0].items() if k not in ("episodes", "empty_episodes")}
+    episodes, empty = [], []
+    for block in blocks:
+        for entry in block["episodes"]:
+            episodes.append({**entry, "episode_index": len(episodes)})
+        empty.extend(block.get("empty_episodes", []))
+    merged["episodes"] = episodes
+    if empty:
+        merged["empty_episodes"] = empty
+    return merged
+
+
+class _Merge:
+    """Merges committed shards into ``out`` on ``commit()`` (all or nothing, as ``DatasetWriter``)."""
+
+    def __init__(self, shards: list[Path], out: Path) -> None:
+        self.shards, self.out = shards, out
+
+    def commit(self) -> Path:
+        from lerobot.datasets.aggregate import aggregate_datasets
+        from lerobot.datasets.utils import load_info, write_info
+
+        tmp = temporary_beside(self.out)
+        try:
+            with contextlib.redirect_stderr(io.StringIO()):  # lerobot's progress bars
+                aggregate_datasets([f"acn/{p.name}" for p in self.shards], f"acn/{self.out.name}",
+                                   roots=self.shards, aggr_root=tmp)
+            info = load_info(tmp)
+            info[schema.ACN_KEY] = merged_acn_metadata([load_info(p)[schema.ACN_KEY] for p in self.shards])
+            write_info(info, tmp)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        return move_into_place(tmp, self.out)
+
+
+def record_shards(cfg: CollectConfig, out: str | Path, shards: int, ray_config: RayConfig, overwrite: bool = False,
+                  on_episode: Callable[[ShardEpisode], None] | None = None) -> Path:
+    """Collect ``cfg.episodes`` episodes as ``shards`` datasets on Ray and merge them into ``out``.
+    Needs an open ``ray_session``; ``on_episode`` sees each episode as its shard writes it."""
+    from ray.util.queue import Queue
+    from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+    from lerobot.datasets.utils import load_info
+
+    ray = import_ray()
+    out = Path(out).absolute()
+    if out.exists() and not overwrite:
+        raise FileExistsError(f"output directory {out} exists (use --overwrite to replace it)")
+    ranges = [r.tolist() for r in np.array_split(np.arange(cfg.episodes), min(shards, cfg.episodes))]
+    work = out.parent / f".{out.name}.shards-{os.getpid()}"
+    shutil.rmtree(work, ignore_errors=True)
+    work.mkdir(parents=True)
+    paths = [work / f"shard-{k:03d}" for k in range(len(ranges))]
+    here = NodeAffinitySchedulingStrategy(ray.get_runtime_context().get_node_id(), soft=False)
+    task = _remote(ray, "shard", _write_shard, num_cpus=0, max_retries=0)
+    previous_int, previous = signal.getsignal(signal.SIGINT), signal.signal(signal.SIGTERM, _raise_interrupt)
+    refs: list = []
+    progress = Queue(actor_options={"num_cpus": 0})
+
+    def report() -> None:
+        while not progress.empty():
+            entry = ShardEpisode(*progress.get())
+            if on_episode:
+                on_episode(entry)
+
+    try:
+        refs = [task.options(scheduling_strategy=here).remote(cfg, r, str(p), ray_config, progress)
+                for r, p in zip(ranges, paths)]
+        running = list(refs)
+        while running:
+            _, running = ray.wait(running, num_returns=len(running), timeout=0.5)
+            report()
+        try:
+            ray.get(refs)
+        except ray.exceptions.RayTaskError as e:
+            raise _unwrap(ray, e) from None
+        report()
+        path = _commit_quietly(_Merge(paths, out), cfg)
+    except KeyboardInterrupt:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not tear the merge
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        for ref in refs:
+            ray.cancel(ref)  # the shard's record commits its finished episodes
+        ray.wait(refs, num_returns=len(refs), timeout=CANCEL_WAIT_S)
+        done = [p for p in paths if (p / "meta" / "info.json").is_file()]
+        path = _commit_quietly(_Merge(done, out), cfg) if done else None
+        raise Interrupted(path, len(load_info(path)[schema.ACN_KEY]["episodes"]) if path else 0) from None
+    except BaseException:
+        for ref in refs:
+            ray.cancel(ref, force=True)
+        raise
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        signal.signal(signal.SIGINT, previous_int)
+        shutil.rmtree(work, ignore_errors=True)
+        progress.shutdown()
+    return path
