@@ -7,10 +7,11 @@ command exits with 130. Library code raises; only this module prints and exits.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 from pathlib import Path
-from typing import Callable, NoReturn
+from typing import Callable, Iterator, NoReturn
 
 from acn.errors import UserError
 
@@ -81,16 +82,19 @@ def _ray_config(args: argparse.Namespace):
     return config
 
 
-def _ray_executor(args: argparse.Namespace):
-    """The Ray executor for re-simulation batches (``acn.toolkit.parallel``), or a no-op."""
-    import contextlib
-
+@contextlib.contextmanager
+def _ray_executor(args: argparse.Namespace, prog: str) -> Iterator[None]:
+    """Re-simulation batches on Ray within the block (``acn.toolkit.parallel``), or a no-op."""
     config = _ray_config(args)
     if config is None:
-        return contextlib.nullcontext()
+        yield
+        return
     from acn.toolkit.parallel import ray_executor
 
-    return ray_executor(config.address, config.cpus)
+    with ray_executor(config.address, config.cpus) as executor:
+        yield
+    print(f"{prog}: {executor.batches} re-simulation batch(es) ran on Ray ({executor.workers} CPUs), "
+          "smaller ones here", file=sys.stderr)
 
 
 # ----------------------------------------------------------------------------- acn-collect
@@ -258,7 +262,7 @@ def fit_main(argv: list[str] | None = None) -> int:
                         filter_percentile=args.filter_percentile, val_fraction=args.val_fraction, seed=args.seed,
                         device=args.device, precision=args.precision, jacobian_eps=args.jacobian_eps, eval_episodes=args.eval_episodes,
                         eval_seconds=args.eval_seconds)
-        with _ray_executor(args):
+        with _ray_executor(args, "acn-fit"):
             model, metrics = fit(args.datasets, cfg, log=lambda line: print(line, file=sys.stderr))
         path = save(model, metrics, args.out, overwrite=args.overwrite)
         _print_fit_summary(metrics, path)
@@ -509,7 +513,7 @@ def diagnose_main(argv: list[str] | None = None) -> int:
         data = load_measurements(args.measured, side=args.side)
         from tqdm import tqdm
 
-        with _ray_executor(args), tqdm(total=100, file=sys.stderr, bar_format="{l_bar}{bar}| {elapsed} {postfix}",
+        with _ray_executor(args, "acn-diagnose"), tqdm(total=100, file=sys.stderr, bar_format="{l_bar}{bar}| {elapsed} {postfix}",
                                        disable=None) as bar:
             def say(message: str, fraction: float | None = None) -> None:
                 bar.set_description_str(message)

@@ -102,7 +102,9 @@ def ray_session(config: RayConfig | None = None) -> Iterator[Any]:
         ray.init(**kw)
     except ConnectionError as e:
         _remove(temp)
-        raise UserError(f"cannot reach the Ray cluster at {config.address!r}: {str(e).splitlines()[0]}") from None
+        hint = ("" if os.environ.get("RAY_AUTH_MODE") else "; a cluster started by `ray start --head` checks a token: "
+                "set RAY_AUTH_MODE=token and RAY_AUTH_TOKEN to the output of `ray get-auth-token` on its head node")
+        raise UserError(f"cannot reach the Ray cluster at {config.address!r}: {str(e).splitlines()[0]}{hint}") from None
     try:
         yield ray
     finally:
