@@ -48,6 +48,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/view.py
 	$(BIN)/python benchmarks/ppo.py
 	$(BIN)/python benchmarks/diagnose.py
+	$(BIN)/python benchmarks/scale.py
 
 clean:
 	rm -rf $(VENV) $(OUT)
