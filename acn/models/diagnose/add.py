@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from acn.models.diagnose.compare import Comparison, compare
-from acn.models.diagnose.fitting import EffectFit, default_granularity, fit_effect
+from acn.models.diagnose.fitting import EffectFit, default_granularity, fit_effect, refittable
 from acn.models.diagnose.problem import DiagnoseConfig, Problem
 from acn.models.diagnose.rank import Candidate, Judgement, judge, rank
 from acn.toolkit.effects import Model, get_effect
@@ -54,7 +54,7 @@ def choose_fit(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, j
         if best is not None and g == "joint" and best[0].granularity == "shared":
             break  # neither joint types nor legs differ: no reason to try 12 values
         seed = start.values if start is not None and start.granularity == g else (best[0].values if best else None)
-        fit = fit_effect(problem, model, effect, g, rows, start=seed)
+        fit = fit_effect(problem, model, effect, g, rows, start=seed, refit=refittable(model))
         if best is None:
             best = (fit, judge(problem, fit.model, judge_rows, base_residual))
             continue
@@ -63,7 +63,8 @@ def choose_fit(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, j
     fit = best[0]
     more = problem.sample(problem.fit_rows, cfg.fit_rows, salt=5)
     if len(more) > len(rows):  # refine on more rows, starting from the chosen values
-        fit = fit_effect(problem, model, effect, fit.granularity, more, start=fit.values, max_iter=6)
+        fit = fit_effect(problem, model, effect, fit.granularity, more, start=fit.values, max_iter=6,
+                         refit=refittable(model))
     return fit, judge(problem, fit.model, judge_rows, base_residual)
 
 

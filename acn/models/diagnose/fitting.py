@@ -112,6 +112,69 @@ class FreeParameters:
         return out
 
 
+def granularity_of(effect: Effect, values: Values) -> str:
+    """The coarsest granularity that represents ``values`` exactly."""
+    for g in GRANULARITIES:
+        free = FreeParameters(effect, g, values)
+        if all(np.allclose(free.values(free.vector(values))[p.name], values[p.name]) for p in effect.parameters):
+            return g
+    return "joint"
+
+
+MAX_REFIT = 6  # free parameters of earlier effects refitted with a new one (offsets per joint are not)
+
+
+def refittable(model: Model) -> tuple[str, ...]:
+    """Effects of ``model`` refitted whenever another is fitted, while they stay few parameters."""
+    out, total = [], 0
+    for t in model.effects:
+        n = len(FreeParameters(t.effect, granularity_of(t.effect, t.values), t.values).names)
+        if total + n <= MAX_REFIT:
+            out.append(t.name)
+            total += n
+    return tuple(out)
+
+
+@dataclass
+class Together:
+    """The new effect's free parameters, then those of effects already in the model that are
+    refitted with it (a second effect shifts what the first one was fitted to absorb)."""
+
+    parts: list[FreeParameters]
+
+    @property
+    def effect(self) -> Effect:
+        return self.parts[0].effect
+
+    @property
+    def names(self) -> list[str]:
+        return self.parts[0].names + [f"{p.effect.name}.{n}" for p in self.parts[1:] for n in p.names]
+
+    def scale(self) -> np.ndarray:
+        return np.concatenate([p.scale() for p in self.parts])
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        lo, hi = zip(*(p.bounds() for p in self.parts))
+        return np.concatenate(lo), np.concatenate(hi)
+
+    def start(self, values: Values | None) -> np.ndarray:
+        first = self.parts[0]
+        return np.concatenate([first.vector(values or first.base), *(p.vector(p.base) for p in self.parts[1:])])
+
+    def split(self, x: np.ndarray) -> list[Values]:
+        out, i = [], 0
+        for p in self.parts:
+            n = len(p.names)
+            out.append(p.values(x[i:i + n]))
+            i += n
+        return out
+
+    def model(self, base: Model, x: np.ndarray) -> Model:
+        for part, values in zip(self.parts, self.split(x)):
+            base = base.with_effect(part.effect, values)
+        return base
+
+
 @dataclass
 class EffectFit:
     """One fitted effect."""
@@ -138,7 +201,7 @@ class Objective:
     optimiser past ``budget`` of them, and remembers the best point it saw under ``norm``.
     """
 
-    def __init__(self, problem: Problem, base: Model, free: FreeParameters, rows: np.ndarray, budget: int) -> None:
+    def __init__(self, problem: Problem, base: Model, free: Together, rows: np.ndarray, budget: int) -> None:
         d = problem.data
         self.problem, self.base, self.free, self.rows = problem, base, free, rows
         self.scale = free.scale()
@@ -146,15 +209,15 @@ class Objective:
         self.previous = d.previous_actions(rows, problem.history)
         self.budget, self.evaluations = budget, 0
         self.norm: minimize.Norm | None = None
-        self.best_cost, self.best_z = np.inf, None
+        self.best_cost, self.best_z, self.best_r = np.inf, None, None
 
     def __call__(self, z: np.ndarray) -> np.ndarray:
         z = z.reshape(len(self.scale), -1)
         k = z.shape[1]
         if self.evaluations + k > self.budget:
             raise _OutOfBudget
-        configs = [self.base.with_effect(self.free.effect, self.free.values(z[:, j] * self.scale))
-                   .sim_config(self.problem.control) for j in range(k)]
+        configs = [self.free.model(self.base, z[:, j] * self.scale).sim_config(self.problem.control)
+                   for j in range(k)]
         n = len(self.rows)
         with Resimulator(self.problem.backend, configs, threads=self.problem.threads) as sim:
             pred = sim.run(np.tile(self.states, (k, 1)), np.tile(self.actions, (k, 1)),
@@ -166,62 +229,76 @@ class Objective:
             for j in range(k):
                 cost = float(self.norm.value(r[:, j]))
                 if cost < self.best_cost:
-                    self.best_cost, self.best_z = cost, z[:, j].copy()
+                    self.best_cost, self.best_z, self.best_r = cost, z[:, j].copy(), r[:, j].copy()
         return r.astype(np.float64)
 
 
 def fit_effect(problem: Problem, base: Model, effect: Effect, granularity: str, rows: np.ndarray,
-               start: Values | None = None, max_iter: int = 12) -> EffectFit:
+               start: Values | None = None, max_iter: int = 12, refit: tuple[str, ...] = ()) -> EffectFit:
     """Robust least-squares fit of ``effect`` added to ``base`` on ``rows`` (module docstring).
 
     A coarse scan picks the start; ``mujoco.minimize.least_squares`` (pseudo-Huber norm) refines
     it within ``max_iter`` iterations and an evaluation budget; the best point seen is kept.
+    ``refit``: names of effects in ``base`` whose parameters are fitted again together with it.
     """
     current = next((t.values for t in base.effects if t.name == effect.name), None)
-    free = FreeParameters(effect, granularity, current or effect.nominal(problem.control))
+    parts = [FreeParameters(effect, granularity, current or effect.nominal(problem.control))]
+    for t in base.effects:
+        if t.name in refit and t.name != effect.name:
+            parts.append(FreeParameters(t.effect, granularity_of(t.effect, t.values), t.values))
+    free = Together(parts)
     lo, hi = free.bounds()
     n_free = len(free.names)
     objective = Objective(problem, base, free, rows, budget=8 + max_iter * (n_free + 3))
     scale = objective.scale
-    z0 = np.clip(free.vector(start or free.base) / scale, lo / scale, hi / scale)
-    z0, r0 = _scan_start(objective, z0, free, lo / scale, hi / scale)
-    objective.norm = SoftL1(max(3.0 * 1.4826 * float(np.median(np.abs(r0))), 1e-9))  # 3 robust sigmas
-    objective.best_cost, objective.best_z = float(objective.norm.value(r0)), z0
-    try:
-        minimize.least_squares(z0, objective, bounds=[lo / scale, hi / scale], norm=objective.norm, eps=FD_STEP,
-                               max_iter=max_iter, verbose=0, xtol=1e-3, gtol=1e-10, mu_factor=10.0 ** 0.5)
-    except _OutOfBudget:
-        pass
-    z = objective.best_z
+    z0 = np.clip(free.start(start) / scale, lo / scale, hi / scale)
+    z, r, sensitive = _scan_start(objective, z0, free, lo / scale, hi / scale)
+    # Stages: the pseudo-Huber width follows the residual down (3 robust sigmas of the current
+    # residual), so rows that jump stay outliers as the fit closes in.
+    stages = 1 if max_iter <= 3 else 3
+    for stage in range(stages if sensitive else 0):
+        objective.norm = SoftL1(max(3.0 * 1.4826 * float(np.median(np.abs(r))), 1e-9))
+        objective.best_cost, objective.best_z, objective.best_r = float(objective.norm.value(r)), z, r
+        try:
+            minimize.least_squares(z, objective, bounds=[lo / scale, hi / scale], norm=objective.norm, eps=FD_STEP,
+                                   max_iter=-(-max_iter // stages), verbose=0, xtol=1e-3, gtol=1e-10,
+                                   mu_factor=10.0 ** 0.5)
+        except _OutOfBudget:
+            break
+        finally:
+            z, r = objective.best_z, objective.best_r
     objective.budget = np.inf  # the Jacobian for the intervals is always computed
-    r = objective(z.reshape(-1, 1))[:, 0]
     jac, _ = minimize.jacobian_fd(objective, z.reshape(-1, 1), r.reshape(-1, 1), np.float64(FD_STEP), 0,
                                   [lo.reshape(-1, 1) / scale[:, None], hi.reshape(-1, 1) / scale[:, None]])
     stderr = _stderr(r, jac) * scale
     x = z * scale
-    values = free.values(x)
-    return EffectFit(effect, granularity, values, free.names, x, stderr, base.with_effect(effect, values),
+    return EffectFit(effect, granularity, free.split(x)[0], free.names, x, stderr, free.model(base, x),
                      cost=float(r @ r), evaluations=objective.evaluations)
 
 
-def _scan_start(residual, z0: np.ndarray, free: FreeParameters, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+def _scan_start(residual, z0: np.ndarray, free: Together, lo: np.ndarray, hi: np.ndarray):
     """A coarse scan along the realistic direction (one batch) so the optimiser starts near the basin.
 
-    Parameters without a one-sided realistic range (signed ones) stay where they are.
+    Parameters without a one-sided realistic range (signed ones) stay where they are. Returns the
+    best point, its residual, and whether the residual moved at all (an effect the data carry no
+    information on, such as a torque limit that is never reached, needs no refinement).
     """
+    first = free.parts[0]
     target: list[float | None] = []
-    for p in free.effect.parameters:
+    for p in first.effect.parameters:
         mid = float(np.mean(p.realistic)) if p.realistic and not p.signed else None
-        target += [mid] * free._size(p)
+        target += [mid] * first._size(p)
+    target += [None] * (len(z0) - len(target))  # effects refitted along stay where they are
     scale = free.scale()
     direction = np.array([(t / s if t is not None else z) for t, s, z in zip(target, scale, z0)]) - z0
     if not np.any(direction):
-        return z0, residual(z0.reshape(-1, 1))[:, 0]
+        return z0, residual(z0.reshape(-1, 1))[:, 0], True
     steps = np.array([0.0, 0.25, 0.5, 1.0, 1.6, 2.5])
     points = np.clip(z0[:, None] + direction[:, None] * steps[None], lo[:, None], hi[:, None])
     r = residual(points)
     best = int(np.argmin(np.sum(np.abs(r), axis=0)))
-    return points[:, best], r[:, best]
+    moved = np.abs(r - r[:, :1]).max() > 1e-9 * max(1.0, float(np.abs(r).max()))
+    return points[:, best], r[:, best], bool(moved)
 
 
 def _stderr(r: np.ndarray, jac: np.ndarray) -> np.ndarray:
@@ -231,6 +308,9 @@ def _stderr(r: np.ndarray, jac: np.ndarray) -> np.ndarray:
     from mujoco import sysid
     from scipy.special import stdtrit
 
-    _, intervals = sysid.calculate_intervals([r], jac)
-    dof = max(1, r.size - jac.shape[1])
-    return np.asarray(intervals) / stdtrit(dof, 0.975)
+    out = np.full(jac.shape[1], np.inf)  # a parameter the residual does not depend on is not determined
+    moving = np.abs(jac).max(axis=0) > 0
+    if moving.any():
+        _, intervals = sysid.calculate_intervals([r], jac[:, moving])
+        out[moving] = np.asarray(intervals) / stdtrit(max(1, r.size - int(moving.sum())), 0.975)
+    return out

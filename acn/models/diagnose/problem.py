@@ -36,7 +36,7 @@ class DiagnoseConfig:
     compare_rows: int = 20_000     # held-out rows re-simulated for the one-step error table
     rollout_starts: int = 200      # held-out starts per longer horizon
     rank_rows: int = 400           # fit rows used to fit every candidate
-    rank_iterations: int = 5       # optimiser iterations per candidate when ranking
+    rank_iterations: int = 3       # optimiser iterations per candidate when ranking (the added one gets more)
     judge_rows: int = 1_500        # held-out rows that judge a candidate
     fit_rows: int = 1_500          # fit rows for an added effect's final fit
     candidates: tuple[str, ...] = EFFECT_NAMES
@@ -128,8 +128,12 @@ def prepare(data: Measurements, model: Model, cfg: DiagnoseConfig) -> Problem:
     held = _held_out_mask(data, cfg.seed)
     ok = finite & np.isfinite(data.next_state[:, channels]).all(1)
     history = int(math.ceil(MAX_LATENCY / data.control.control_dt)) + 1
+    fit_rows, held_rows = np.flatnonzero(ok & ~held), np.flatnonzero(ok & held)
+    if min(len(fit_rows), len(held_rows)) < 8:
+        raise UserError(f"{data.description}: too few complete transitions to fit on some and judge on others "
+                        f"({len(fit_rows)} / {len(held_rows)}); record longer or more episodes")
     return Problem(data=data, control=data.control, backend=model.backend, channels=channels, scale=scale,
-                   fit_rows=np.flatnonzero(ok & ~held), held_rows=np.flatnonzero(ok & held), history=history,
+                   fit_rows=fit_rows, held_rows=held_rows, history=history,
                    derived=derived, threads=cfg.threads, seed=cfg.seed)
 
 
@@ -139,11 +143,13 @@ def _dynamic() -> np.ndarray:
 
 
 def _held_out_mask(data: Measurements, seed: int) -> np.ndarray:
-    """Half the episodes held out; with fewer than 4 episodes, alternate blocks of 2 s instead."""
+    """Half the episodes held out; with fewer than 4 episodes, alternate blocks of time instead
+    (2 s, shorter when the episodes are: at least 4 blocks)."""
     episodes = np.unique(data.episode)
     if len(episodes) >= 4:
         rng = np.random.default_rng(seed)
         held = rng.permutation(episodes)[: len(episodes) // 2]
         return np.isin(data.episode, held)
-    block = max(1, int(round(2.0 / data.control.control_dt)))
+    longest = int(np.bincount(data.episode - data.episode.min()).max())
+    block = max(1, min(int(round(2.0 / data.control.control_dt)), longest // 4))
     return (data.frame // block) % 2 == 1

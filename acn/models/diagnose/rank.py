@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from acn.models.diagnose.fitting import EffectFit, default_granularity, fit_effect
+from acn.models.diagnose.fitting import EffectFit, default_granularity, fit_effect, refittable
 from acn.models.diagnose.problem import DiagnoseConfig, Problem
 from acn.toolkit.effects import Model, get_effect
 
@@ -31,6 +31,7 @@ SIGNIFICANCE_Z = 3.0
 MIN_IMPROVEMENT = 0.02       # of the error (MSE)
 LARGE_IMPROVEMENT = 0.25     # of the error (MSE): significant however unevenly spread
 BLOCK = 10                   # rows per block in the significance test
+PARSIMONY_Z = 2.0            # a richer candidate must beat a simpler one by this much to rank first
 
 
 @dataclass
@@ -77,10 +78,7 @@ def judge(problem: Problem, after: Model, rows: np.ndarray, before_residual: np.
     ra = np.where(np.isfinite(ra), ra, 10.0)
     eb, ea = (before_residual[ok] ** 2).mean(1), (ra[ok] ** 2).mean(1)
     mse_b, mse_a = float(eb.mean()), float(ea.mean())
-    diff = eb - ea
-    blocks = diff[: len(diff) // BLOCK * BLOCK].reshape(-1, BLOCK).mean(1) if len(diff) >= 2 * BLOCK else diff
-    se = float(blocks.std(ddof=1) / np.sqrt(len(blocks))) if len(blocks) > 1 else np.inf
-    z = float(diff.mean() / se) if se > 0 else (np.inf if diff.mean() > 0 else 0.0)
+    z = _paired_z(eb - ea)
     removed = 1.0 - mse_a / mse_b if mse_b > 0 else 0.0
     gain = (mse_b - mse_a) / (reference_mse or mse_b) if mse_b > 0 else 0.0
     significant = gain >= MIN_IMPROVEMENT and (z >= SIGNIFICANCE_Z or gain >= LARGE_IMPROVEMENT)
@@ -96,8 +94,36 @@ def rank(problem: Problem, model: Model, cfg: DiagnoseConfig, judge_rows: np.nda
         if progress:
             progress(f"fitting {name}", i / len(cfg.candidates))
         effect = get_effect(name)
-        fit = fit_effect(problem, model, effect, default_granularity(effect), fit_rows, max_iter=cfg.rank_iterations)
+        fit = fit_effect(problem, model, effect, default_granularity(effect), fit_rows, max_iter=cfg.rank_iterations,
+                         refit=refittable(model))
         j = judge(problem, fit.model, judge_rows, base_residual)
         out.append(Candidate(fit, j, j.removed - PRICE_PER_PARAMETER * len(fit.x)))
     out.sort(key=lambda c: (-c.score, len(c.fit.x)))
-    return out
+    return prefer_simpler(out)
+
+
+def prefer_simpler(ranking: list[Candidate]) -> list[Candidate]:
+    """Put first the simplest candidate the best one does not significantly beat.
+
+    Some effects look alike in data (extra derivative gain and joint damping, strength and both
+    gains scaled): the one with fewer parameters is the explanation unless the richer one
+    predicts held-out rows significantly better (paired z >= 2, blocks of rows).
+    """
+    if len(ranking) < 2 or not ranking[0].judgement.significant:
+        return ranking
+    best = ranking[0]
+    for c in sorted(ranking[1:], key=lambda c: len(c.fit.x)):
+        if len(c.fit.x) >= len(best.fit.x) or not c.judgement.significant:
+            continue
+        e_simple = (c.judgement.residual_after ** 2).mean(1)
+        e_best = (best.judgement.residual_after ** 2).mean(1)
+        if _paired_z(e_simple - e_best) < PARSIMONY_Z:
+            return [c] + [x for x in ranking if x is not c]
+    return ranking
+
+
+def _paired_z(diff: np.ndarray) -> float:
+    """mean / standard error of ``diff`` over blocks of consecutive rows."""
+    blocks = diff[: len(diff) // BLOCK * BLOCK].reshape(-1, BLOCK).mean(1) if len(diff) >= 2 * BLOCK else diff
+    se = float(blocks.std(ddof=1) / np.sqrt(len(blocks))) if len(blocks) > 1 else np.inf
+    return float(diff.mean() / se) if se > 0 else (np.inf if diff.mean() > 0 else 0.0)
