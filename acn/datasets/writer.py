@@ -59,6 +59,19 @@ def _arrow_column(values: np.ndarray, typ: pa.DataType) -> pa.Array:
     return pa.array(values, type=typ)
 
 
+def _sort_stats(root: Path) -> None:
+    """Rewrite ``meta/stats.json`` with sorted keys: lerobot builds it from a set, whose order
+    differs between processes, so the same data would give files that differ byte for byte."""
+    import json
+
+    from lerobot.datasets.utils import STATS_PATH, write_json
+
+    path = root / STATS_PATH
+    if path.is_file():
+        stats = json.loads(path.read_text())
+        write_json({k: dict(sorted(v.items())) if isinstance(v, dict) else v for k, v in sorted(stats.items())}, path)
+
+
 class DatasetWriter:
     """Writes ``Episode`` objects into a new dataset at ``root`` (see module docstring)."""
 
@@ -151,6 +164,7 @@ class DatasetWriter:
             self._writer = None
         self.meta._close_writer()  # flushes the buffered episode metadata
         write_info(self.meta.info, self._tmp)
+        _sort_stats(self._tmp)
         return move_into_place(self._tmp, self.root)
 
     def abort(self) -> None:
