@@ -223,15 +223,19 @@ def fit_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, type=Path, help="model directory to create")
     p.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
     p.add_argument("--variant", default=d.variant, choices=VARIANTS,
-                   help="paper: learned Jacobian (the paper's, degenerate); mujoco-jacobian: J from the target")
-    p.add_argument("--epochs", type=_positive_int, default=d.epochs)
-    p.add_argument("--batch-size", type=_positive_int, default=d.batch_size)
+                   help="inverse: regress Gauss-Newton labels delta_a* from same-state re-simulations (default); "
+                   "paper: learned Jacobian (the paper's, degenerate); mujoco-jacobian: J from the target")
+    p.add_argument("--epochs", type=_positive_int, default=d.epochs, help="default: 30 (paper), 60 (inverse)")
+    p.add_argument("--batch-size", type=_positive_int, default=d.batch_size, help="default: 256 (paper), 64 (inverse)")
     p.add_argument("--lr", type=_positive_float, default=d.lr)
+    p.add_argument("--lr-schedule", default=d.lr_schedule, choices=("constant", "cosine"),
+                   help="default: constant (paper), cosine (inverse)")
     p.add_argument("--lambda-l1", type=_nonneg_float, default=d.lambda_l1, help="weight of |delta_a|_1")
-    p.add_argument("--hidden", type=_positive_int, default=d.hidden)
+    p.add_argument("--hidden", type=_positive_int, default=d.hidden, help="default: 256 (paper), 512 (inverse)")
     p.add_argument("--layers", type=_positive_int, default=d.layers, help="hidden layers per network")
     p.add_argument("--filter-percentile", type=_positive_float, default=d.filter_percentile,
-                   help="keep rows whose source-target gap is below this percentile (100: keep all)")
+                   help="keep rows whose source-target gap is below this percentile (100: keep all; "
+                   "default: 70 for paper and mujoco-jacobian, 100 for inverse)")
     p.add_argument("--val-fraction", type=_positive_float, default=d.val_fraction, help="of episodes")
     p.add_argument("--seed", type=_nonneg_int, default=d.seed)
     p.add_argument("--device", default=d.device, help="cpu or cuda")
@@ -242,6 +246,30 @@ def fit_parser() -> argparse.ArgumentParser:
     p.add_argument("--eval-episodes", type=_nonneg_int, default=d.eval_episodes,
                    help="closed-loop evaluation episodes from held-out initial states (0: skip)")
     p.add_argument("--eval-seconds", type=_positive_float, default=d.eval_seconds)
+    p.add_argument("--no-oracles", action="store_true",
+                   help="skip the same-state and tracking oracles in the closed-loop evaluation")
+    p.add_argument("--label-iterations", type=_positive_int, default=d.label_iterations,
+                   help="inverse: Gauss-Newton steps with a finite-difference Jacobian per label")
+    p.add_argument("--label-broyden", type=_nonneg_int, default=d.label_broyden,
+                   help="inverse: further quasi-Newton (Broyden) steps per label")
+    p.add_argument("--label-damping", type=_nonneg_float, default=d.label_damping,
+                   help="inverse: Levenberg-Marquardt ridge, relative to the mean diagonal of J^T J")
+    p.add_argument("--jacobian-weight", type=_nonneg_float, default=d.jacobian_weight,
+                   help="inverse: add this times the paper's fit term under the target's true J")
+    p.add_argument("--label-state-weight", type=_nonneg_float, default=d.label_state_weight,
+                   help="inverse: add this times the label error seen through the target's true J")
+    p.add_argument("--oracle-iterations", type=_positive_int, default=d.oracle_iterations,
+                   help="Gauss-Newton steps of the oracles (closed loop and the held-out one-step reference)")
+    p.add_argument("--rounds", type=_nonneg_int, default=d.rounds,
+                   help="inverse: closed-loop rounds (collect with the corrector, label the visited states, refit; "
+                   "default 4)")
+    p.add_argument("--round-episodes", type=_positive_int, default=d.round_episodes)
+    p.add_argument("--round-seconds", type=_positive_float, default=d.round_seconds)
+    p.add_argument("--round-epochs", type=_positive_int, default=d.round_epochs)
+    p.add_argument("--threads", type=_positive_int, default=d.threads, help="re-simulation threads")
+    p.add_argument("--calibrate", action=argparse.BooleanOptionalAction, default=d.calibrate,
+                   help="scale F by 0, 0.25, ... 1, whichever leaves the least one-step error on half of the held-out "
+                   "episodes (default: on for inverse)")
     _add_ray_arguments(p, "the re-simulation batches (Jacobians, labels; rows in chunks)")
     return p
 
@@ -261,7 +289,13 @@ def fit_main(argv: list[str] | None = None) -> int:
                         lr=args.lr, batch_size=args.batch_size, epochs=args.epochs,
                         filter_percentile=args.filter_percentile, val_fraction=args.val_fraction, seed=args.seed,
                         device=args.device, precision=args.precision, jacobian_eps=args.jacobian_eps, eval_episodes=args.eval_episodes,
-                        eval_seconds=args.eval_seconds)
+                        eval_seconds=args.eval_seconds, oracles=not args.no_oracles,
+                        label_iterations=args.label_iterations, label_broyden=args.label_broyden,
+                        label_damping=args.label_damping, jacobian_weight=args.jacobian_weight, rounds=args.rounds,
+                        label_state_weight=args.label_state_weight, oracle_iterations=args.oracle_iterations,
+                        lr_schedule=args.lr_schedule,
+                        round_episodes=args.round_episodes, round_seconds=args.round_seconds,
+                        round_epochs=args.round_epochs, threads=args.threads, calibrate=args.calibrate)
         with _ray_executor(args, "acn-fit"):
             model, metrics = fit(args.datasets, cfg, log=lambda line: print(line, file=sys.stderr))
         path = save(model, metrics, args.out, overwrite=args.overwrite)
@@ -277,8 +311,16 @@ def _print_fit_summary(m: dict, path: Path) -> None:
     if "val_objective_true_jacobian" in m:
         t = m["val_objective_true_jacobian"]
         print(f"validation fit under the target's true Jacobian {t['fit']:.4f} (no correction {t['fit_no_correction']:.4f})")
+    if "one_step" in m:
+        o = m["one_step"]
+        print(f"one-step same-state error on held-out rows {o['error_no_correction']:.4f} -> corrected "
+              f"{o['error_corrected']:.4f} (same-state oracle {o['error_oracle']:.4f}): "
+              f"share_of_oracle={o['share_of_oracle']:.3f}")
     if "closed_loop" in m:
+        from acn.models.evaluate import format_closed_loop
+
         c = m["closed_loop"]
+        print(format_closed_loop(c))
         print(f"closed-loop divergence {c['divergence_uncorrected']:.4f} -> {c['divergence_corrected']:.4f}: "
               f"divergence_reduction={c['divergence_reduction']:.3f}")
         print(f"eps_transfer {c['eps_transfer_uncorrected']:.3f} -> {c['eps_transfer']:.3f}; "

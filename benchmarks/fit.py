@@ -10,6 +10,10 @@ matmul_gflops            this machine's float32 matmul rate on the network's wid
 matmul_bf16_gflops       the same in bf16
 fit_fraction_of_matmul   fit_gflops / matmul_gflops
 million_frames_10_epochs_s  projected time for 1M frames x 10 epochs at fit_samples_per_s
+label_rows_per_s         Gauss-Newton same-state labels (acn.models.labels.solve, acn-fit's default
+                         solve) on real paired trot rows, with 1 and 2 re-simulation threads
+label_simulator_share    the share of the labelling time spent inside the re-simulation (MuJoCo)
+label_thread_scaling     label_rows_per_s with 2 threads / with 1
 
 Data: synthetic rows with the real shapes (40 state + 12 action inputs, 33 residual channels):
 speed does not depend on the values. Usage: python benchmarks/fit.py [--samples 100000]
@@ -82,13 +86,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--samples", type=int, default=100_000)
     ap.add_argument("--epochs", type=int, default=2)
+    ap.add_argument("--label-rows", type=int, default=500)
     args = ap.parse_args()
     torch.manual_seed(0)
     x, r = torch.randn(args.samples, N_IN), torch.randn(args.samples, N_OUT)
     make = lambda: Corrector(default_config("paper", 256, 2))  # noqa: E731
     base = baseline(make(), x, r, args.epochs)
     model = make()
-    cfg = FitConfig(epochs=args.epochs)
+    cfg = FitConfig(variant="paper", epochs=args.epochs)  # the paper's network and batch 256
     t = time.perf_counter()
     train(model, Split(x, r, None), cfg)
     ours = args.samples * args.epochs / (time.perf_counter() - t)
@@ -104,6 +109,35 @@ def main() -> None:
     print(f"million_frames_10_epochs_s={1e7 / ours:.0f}")
     print(f"torch_threads={torch.get_num_threads()}")
     print(f"fit_bf16={int(cfg.use_bf16())}")
+    labelling(args.label_rows)
+
+
+def labelling(rows: int) -> None:
+    """Label speed on real rows: a short paired trot, labels from the source states."""
+    from acn.models.evaluate import typical_spread
+    from acn.models.labels import solve
+    from acn.models.oracle import OUTPUT_INDEX
+    from acn.toolkit.collector import CollectConfig, collect_episodes
+    from acn.toolkit.resim import Resimulator
+
+    ccfg = CollectConfig(target="mujoco", policy="trot", episodes=1, seconds=rows * 0.02, seed=0)
+    (ep,) = collect_episodes(ccfg, [0])
+    s, a, g = ep.source.state, ep.source.action, ep.source.next_state
+    rate = {}
+    for threads in (1, 2):
+        with Resimulator("mujoco", ccfg.sim, threads=threads) as resim:
+            solve(resim, s[:4], a[:4], g[:4], OUTPUT_INDEX, 1 / typical_spread(), FitConfig().solver())  # compile
+            t = time.perf_counter()
+            sol = solve(resim, s, a, g, OUTPUT_INDEX, 1 / typical_spread(), FitConfig().solver())
+            rate[threads] = len(s) / (time.perf_counter() - t)
+            share = sol.resim_seconds / (len(s) / rate[threads])
+        print(f"label_rows_per_s_{threads}_threads={rate[threads]:.0f}")
+    print(f"label_rows_per_s={rate[2]:.0f}")
+    print(f"label_simulator_share={share:.3f}")
+    print(f"label_thread_scaling={rate[2] / rate[1]:.2f}")
+    print(f"label_resims_per_row={FitConfig().solver().resims_per_row}")
+    print(f"label_removed={sol.removed:.3f}")
+    print(f"make_demo_labels_s={6000 / rate[2]:.0f}")
 
 
 if __name__ == "__main__":

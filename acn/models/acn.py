@@ -16,6 +16,13 @@ Variants (``VARIANTS``):
   the control step, computed by finite differences in MuJoCo (``acn.models.sensitivity``);
   only ActionNet is trained. The problem is then well posed: delta_a is the action change
   that, to first order, makes the target's transition match the source's.
+- ``inverse``: an inverse model, as in Grounded Action Transformation. Each training row gets
+  a label delta_a* from a Gauss-Newton solve on target re-simulations (``acn.models.labels``):
+  the correction that makes the target, started from the SOURCE state s_t with a_t + delta_a*,
+  land on the recorded source s'_src (the same-state gap, not the difference of two drifted
+  trajectories). ActionNet regresses delta_a* (``regression_loss``, labels scaled by their
+  training spread), optionally plus ``jacobian_weight`` times the paper's fit term under the
+  target's true J at delta_a = 0.
 """
 
 from __future__ import annotations
@@ -25,12 +32,25 @@ from torch import nn
 
 from acn.toolkit.state import DYNAMIC_GROUPS, GROUPS, STATE_NAMES
 
-VARIANTS: tuple[str, ...] = ("paper", "mujoco-jacobian")
+VARIANTS: tuple[str, ...] = ("inverse", "paper", "mujoco-jacobian")
+LEARNED_JACOBIAN = ("paper",)
+LABELLED = ("inverse",)  # variants that regress Gauss-Newton labels
 
 # Absolute position in the plane and heading carry no dynamics: the network does not see them.
 _EXCLUDED = ("base_pos_x", "base_pos_y", "base_yaw")
 INPUT_CHANNELS: tuple[str, ...] = tuple(n for n in STATE_NAMES if n not in _EXCLUDED)           # 40
 OUTPUT_CHANNELS: tuple[str, ...] = tuple(n for g in DYNAMIC_GROUPS for n in GROUPS[g] if n not in _EXCLUDED)  # 33
+# What determines a simulated transition: the dynamic channels (no sensor readings, which differ
+# between simulators for the same state: the labelled variants see only these).
+DYNAMIC_INPUT_CHANNELS: tuple[str, ...] = OUTPUT_CHANNELS  # 33
+
+
+def input_channels(variant: str, sensors: bool | None = None) -> tuple[str, ...]:
+    """The state channels F reads: with the contact and IMU readings (``sensors``; default: all
+    variants but the labelled ones) or the dynamic channels only."""
+    if sensors is None:
+        sensors = variant not in LABELLED
+    return INPUT_CHANNELS if sensors else DYNAMIC_INPUT_CHANNELS
 
 
 def mlp(n_in: int, hidden: int, n_out: int, layers: int = 2) -> nn.Sequential:
@@ -67,3 +87,8 @@ def acn_loss(delta_a: torch.Tensor, jacobian: torch.Tensor, residual: torch.Tens
     predicted = torch.bmm(jacobian, delta_a.unsqueeze(-1)).squeeze(-1)
     fit = (predicted - residual).pow(2).mean()
     return fit + lambda_l1 * delta_a.abs().sum(dim=1).mean(), fit
+
+
+def regression_loss(delta_a: torch.Tensor, label: torch.Tensor) -> torch.Tensor:
+    """mean over rows and channels of (delta_a - delta_a*)^2, both scaled by the labels' spread."""
+    return (delta_a - label).pow(2).mean()

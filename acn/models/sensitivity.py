@@ -1,50 +1,73 @@
-"""The target simulator's control Jacobian J = d s_{t+1} / d a_t over one control step.
+"""The target simulator's control sensitivity d s_{t+1} / d a_t over one control step.
 
-Central finite differences: from each recorded state, MuJoCo re-simulates the control step
-(``substeps`` physics steps with the action held) for a +- eps on each action channel, in
-batches through ``mujoco.rollout`` (threaded, no Python per physics step).
+Finite differences through ``acn.toolkit.resim.Resimulator``: each row is re-simulated once
+with its action and once per bumped action channel, all rows and bumps in one batch
+(``mujoco.rollout`` on a thread pool for MuJoCo). Channel differences wrap angles.
 """
 
 from __future__ import annotations
 
-import os
+from dataclasses import dataclass
 
-import mujoco
-import mujoco.rollout
 import numpy as np
 
-from acn.toolkit.backends import SimConfig
-from acn.toolkit.backends.mujoco_backend import MuJoCoBackend
-from acn.toolkit.state import ACTION_DIM, STATE_NAMES
+from acn.toolkit.resim import Resimulator
+from acn.toolkit.state import ACTION_DIM, STATE_NAMES, WRAPPED_INDEX, wrap_angle
 
 
-def control_jacobian(sim: SimConfig, states: np.ndarray, actions: np.ndarray, channels: list[str],
-                     eps: float = 0.01, chunk: int = 128, threads: int | None = None) -> np.ndarray:
-    """J (N, len(channels), 12): d(channels of s_{t+1}) / d a_t at each (state, action) row.
+def channel_index(channels: list[str] | tuple[str, ...]) -> np.ndarray:
+    """Indices of named channels in the state vector."""
+    return np.array([STATE_NAMES.index(c) for c in channels])
 
-    ``eps`` is in action units (rad for joint targets, N m for torques).
+
+def channel_difference(a: np.ndarray, b: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """a - b for arrays over the channels ``index`` (last axis), angles differenced on the circle."""
+    d = a - b
+    wrapped = np.isin(index, WRAPPED_INDEX)
+    if wrapped.any():
+        d[..., wrapped] = wrap_angle(d[..., wrapped])
+    return d
+
+
+@dataclass
+class Sensitivity:
+    """Predictions at N (state, action) rows and their derivatives with respect to the action."""
+
+    next: np.ndarray             # (N, C) the chosen channels of s_{t+1}
+    jacobian: np.ndarray         # (N, C, 12) d next / d a
+    effort: np.ndarray           # (N, 12) mean applied joint torque over the step, N m
+    effort_jacobian: np.ndarray  # (N, 12, 12) d effort / d a
+    diverged: np.ndarray         # (N,) any re-simulation of the row blew up (its values are NaN)
+
+
+def finite_differences(resim: Resimulator, states: np.ndarray, actions: np.ndarray, channels: np.ndarray,
+                       eps: float = 0.01, central: bool = False,
+                       previous: np.ndarray | None = None) -> Sensitivity:
+    """Prediction and sensitivity at each (state, action) row, from one ``Resimulator.run``.
+
+    ``channels``: state-vector indices to return. ``eps`` in action units (rad for joint
+    targets, N m for torques). Forward differences: 1 + 12 re-simulations per row; central:
+    1 + 24.
     """
-    backend = MuJoCoBackend(sim)
-    m = backend.model
-    threads = threads or min(os.cpu_count() or 1, 8)
-    datas = [mujoco.MjData(m) for _ in range(threads)]
-    index = np.array([STATE_NAMES.index(c) for c in channels])
     n = len(states)
-    out = np.empty((n, len(channels), ACTION_DIM))
-    bump = np.concatenate([np.eye(ACTION_DIM), -np.eye(ACTION_DIM)]) * eps  # (24, 12)
-    with mujoco.rollout.Rollout(nthread=threads) as rollout:
-        for lo in range(0, n, chunk):
-            hi = min(lo + chunk, n)
-            phys = np.stack([backend.physics_state(s) for s in states[lo:hi]])
-            init = np.repeat(phys, len(bump), axis=0)
-            ctrl = (actions[lo:hi, None, :] + bump[None]).reshape(-1, 1, ACTION_DIM)
-            ctrl = np.repeat(ctrl, sim.substeps, axis=1)
-            final = rollout.rollout([m] * len(init), datas, init, ctrl)[0][:, -1]
-            nxt = np.stack([backend.state_from_physics(p)[index] for p in final])
-            nxt = nxt.reshape(hi - lo, 2, ACTION_DIM, len(channels))
-            diff = nxt[:, 0] - nxt[:, 1]
-            # Angles: a bump cannot move them by pi, but their wrap point can sit between the two.
-            diff = np.where(np.abs(diff) > np.pi, diff - np.sign(diff) * 2 * np.pi, diff)
-            out[lo:hi] = np.swapaxes(diff, 1, 2) / (2 * eps)
-    backend.close()
-    return out
+    eye = np.eye(ACTION_DIM) * eps
+    bumps = np.concatenate([np.zeros((1, ACTION_DIM)), eye] + ([-eye] if central else []))  # (B, 12)
+    b = len(bumps)
+    acts = (np.asarray(actions, float)[:, None, :] + bumps[None]).reshape(n * b, ACTION_DIM)
+    prev = None if previous is None else np.repeat(np.asarray(previous, float), b, axis=0)
+    pred = resim.run(np.repeat(np.asarray(states, float), b, axis=0), acts, previous=prev)
+    nxt = pred.state[:, 0, channels].reshape(n, b, len(channels))
+    eff = pred.effort[:, 0].reshape(n, b, ACTION_DIM)
+    diverged = pred.diverged.reshape(n, b).any(axis=1)
+    step = 2 * eps if central else eps
+    lo = slice(1 + ACTION_DIM, None) if central else slice(0, 1)
+    jac = np.swapaxes(channel_difference(nxt[:, 1:1 + ACTION_DIM], nxt[:, lo], channels), 1, 2) / step
+    eff_jac = np.swapaxes(eff[:, 1:1 + ACTION_DIM] - eff[:, lo], 1, 2) / step
+    return Sensitivity(nxt[:, 0], jac, eff[:, 0], eff_jac, diverged)
+
+
+def control_jacobian(resim: Resimulator, states: np.ndarray, actions: np.ndarray, channels: list[str],
+                     eps: float = 0.01, previous: np.ndarray | None = None) -> np.ndarray:
+    """J (N, len(channels), 12): d(channels of s_{t+1}) / d a_t by central differences."""
+    return finite_differences(resim, states, actions, channel_index(channels), eps, central=True,
+                              previous=previous).jacobian
