@@ -37,6 +37,8 @@ class LogSpec:
     torque_limit: float = 33.5
     latency_steps: int = 0               # physics steps a command arrives late
     strength: float = 1.0                # torque produced / commanded
+    gains: tuple[float, float] = (1.0, 1.0)  # the PD really runs with (kp, kd) times these
+    deadband: float = 0.0                # rad, total width of a dead band on the PD error
     encoder_offset: np.ndarray | None = None  # (12,) rad, the PD and the log read q + offset
     spec_edit: Callable[[mujoco.MjSpec], None] | None = None
     noise: float = 0.0                   # multiple of NOISE
@@ -129,7 +131,9 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
                 queue.append(a)
                 cmd = queue.pop(0)
                 q, qd = d.qpos[qadr] + offset, d.qvel[dadr]
-                tau = np.clip(s.kp * (cmd - q) - s.kd * qd, -s.torque_limit, s.torque_limit)
+                err = cmd - q
+                err = np.sign(err) * np.maximum(np.abs(err) - s.deadband / 2, 0.0)
+                tau = np.clip(s.gains[0] * s.kp * err - s.gains[1] * s.kd * qd, -s.torque_limit, s.torque_limit)
                 d.ctrl[:] = s.strength * tau
                 mujoco.mj_step(m, d)
                 for c in d.contact[: d.ncon]:

@@ -17,11 +17,11 @@ from acn.toolkit.collector import CollectConfig
 from acn.toolkit.effects import AppliedEffect, Model, get_effect
 
 # Small and quick: a few hundred rows, a few hundred re-simulated per stage.
-FAST = DiagnoseConfig(horizons=(1, 5), compare_rows=400, rollout_starts=40, rank_rows=200, judge_rows=400,
-                      fit_rows=300, rank_iterations=2)
+FAST = DiagnoseConfig(horizons=(1, 5), compare_rows=300, rollout_starts=30, rank_rows=150, judge_rows=300,
+                      fit_rows=200, rank_iterations=2)
 
 
-def measured(tmp_path, hidden: dict, policy: str = "excite", source: str = "mujoco", seconds: float = 4.0,
+def measured(tmp_path, hidden: dict, policy: str = "excite", source: str = "mujoco", seconds: float = 3.0,
              episodes: int = 2, seed: int = 0):
     """Measurements recorded by acn-collect with hidden effects, read back through LeRobotDataset."""
     effects = [AppliedEffect(get_effect(n), get_effect(n).parse(v)) for n, v in hidden.items()]

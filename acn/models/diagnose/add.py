@@ -16,7 +16,7 @@ import numpy as np
 from acn.models.diagnose.compare import Comparison, compare
 from acn.models.diagnose.fitting import EffectFit, default_granularity, fit_effect, refittable
 from acn.models.diagnose.problem import DiagnoseConfig, Problem
-from acn.models.diagnose.rank import Candidate, Judgement, judge, rank
+from acn.models.diagnose.rank import Candidate, Judgement, implausible, judge, rank
 from acn.toolkit.effects import Model, get_effect
 
 AUTO_MIN_EXPLAINED = 0.05  # --auto stops when the best candidate explains less of what is left
@@ -81,7 +81,8 @@ def auto(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows: n
     current, residual = first, base_residual
     while len(added) < cfg.auto_max:
         best = next((c for c in ranking if c.name not in {a.name for a in added}), None)
-        if best is None or not best.judgement.significant or best.judgement.explained(floor_mse) < AUTO_MIN_EXPLAINED:
+        if best is None or not best.judgement.significant or best.judgement.explained(floor_mse) < AUTO_MIN_EXPLAINED \
+                or implausible(best.fit):
             break
         if progress:
             progress(f"adding {best.name}", None)

@@ -188,6 +188,7 @@ class EffectFit:
     model: Model             # the base model with this effect added
     cost: float              # mean squared normalised residual on the fit rows
     evaluations: int
+    nominal: Values          # the values at which the effect is absent (for these control settings)
 
 
 class _OutOfBudget(Exception):
@@ -273,7 +274,7 @@ def fit_effect(problem: Problem, base: Model, effect: Effect, granularity: str, 
     stderr = _stderr(r, jac) * scale
     x = z * scale
     return EffectFit(effect, granularity, free.split(x)[0], free.names, x, stderr, free.model(base, x),
-                     cost=float(r @ r), evaluations=objective.evaluations)
+                     cost=float(r @ r), evaluations=objective.evaluations, nominal=effect.nominal(problem.control))
 
 
 def _scan_start(residual, z0: np.ndarray, free: Together, lo: np.ndarray, hi: np.ndarray):

@@ -5,12 +5,13 @@ Each stage is a function of the previous stage's result (``compare``, ``where``,
 file, the HTML report and ``acn-view`` all read.
 
 Verdict:
-- ``none``: the model matches within the noise (the error is all noise floor, or zero), and no
-  candidate improves held-out predictions significantly;
-- ``effect``: the best candidate (or, with ``--auto``, the effects added one after the other)
-  significantly removes at least 70 % of the structured error (error above the noise floor),
-  with parameters inside their physical range (not pushed against a bound);
-- ``unexplained``: there is structured error, and no candidate explains it that way.
+- ``none``: the model matches within the noise: the error is zero, or less than 15 % of it is
+  structured (above the noise floor), whatever the candidates would fit to it;
+- ``effect``: at least 15 % of the error is structured (above the noise floor) and the best
+  candidate (or, with ``--auto``, the effects added one after the other) significantly removes
+  at least 70 % of it, with a plausible magnitude (``rank.implausible``: not pushed against a
+  bound, not below half the smallest realistic magnitude);
+- ``unexplained``: at least 15 % of the error is structured, and no candidate explains it so.
 
 The noise floor is what ridge regressions on a library of state and action terms cannot
 predict (``noise``) of the model's held-out residual, or of what the best candidates leave,
@@ -28,7 +29,7 @@ from acn.datasets.measurements import Measurements
 from acn.models.diagnose.add import Added, add_effect, auto
 from acn.models.diagnose.compare import Comparison, compare, floor_of
 from acn.models.diagnose.problem import DiagnoseConfig, Problem, prepare
-from acn.models.diagnose.rank import Candidate, explained_share, rank
+from acn.models.diagnose.rank import Candidate, explained_share, implausible, rank
 from acn.models.diagnose.where import breakdown
 from acn.toolkit.effects import Model, get_effect
 
@@ -66,19 +67,6 @@ class Diagnosis:
         return float(np.clip(1.0 - self.floor_mse / self.mse_judged, 0.0, 1.0)) if self.mse_judged > 0 else 0.0
 
 
-def at_bound(fit) -> list[str]:
-    """Free parameters pushed against a bound that is not their nominal value: an effect that
-    needs an implausible value to explain the data is standing in for something else."""
-    out = []
-    for p in fit.effect.parameters:
-        v = np.atleast_1d(np.asarray(fit.values[p.name], float))
-        span = p.upper - p.lower
-        for bound in (p.lower, p.upper):
-            if bound != p.nominal and np.any(np.abs(v - bound) <= 0.01 * span):
-                out.append(p.name)
-    return out
-
-
 def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Candidate], added: list[Added],
             automatic: bool) -> tuple[str, str]:
     """(verdict, reason in words); see module docstring."""
@@ -86,27 +74,25 @@ def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Cand
         return "none", f"the model reproduces the measurements (headline error {before.headline:.2g})"
     structured = 1.0 - floor_mse / mse if mse > 0 else 0.0
     top = ranking[0] if ranking else None
+    if structured < STRUCTURED_SHARE:
+        best = f"; the best candidate, {top.name}, removes {top.judgement.removed:.1%} of it" if top else ""
+        return "none", (f"the model matches within the noise: only {max(structured, 0):.0%} of the error is "
+                        f"predictable from the state and actions{best}")
     if automatic and added:
         share = explained_share(mse, added[-1].judgement.mse_after, floor_mse)
         names = " + ".join(a.name for a in added)
-        if share >= EFFECT_SHARE and not any(at_bound(a.fit) for a in added):
+        if share >= EFFECT_SHARE and not any(implausible(a.fit) for a in added):
             return "effect", f"{names} explain {share:.0%} of the error above the noise floor"
     if top is not None and top.judgement.significant:
         share = top.judgement.explained(floor_mse)
-        stuck = at_bound(top.fit)
-        if share >= EFFECT_SHARE and not stuck:
+        why = implausible(top.fit)
+        if share >= EFFECT_SHARE and not why:
             return "effect", (f"{top.name} explains {share:.0%} of the error above the noise floor "
                               f"(held-out improvement {top.judgement.z:.1f} standard errors)")
-        if structured >= STRUCTURED_SHARE:
-            why = (f"needs {', '.join(stuck)} at the bound of its range" if stuck
-                   else f"explains only {share:.0%}")
-            return "unexplained", (f"{structured:.0%} of the error is structured (above the noise floor); the best "
-                                   f"candidate, {top.name}, {why}")
-    if structured >= STRUCTURED_SHARE:
-        return "unexplained", f"{structured:.0%} of the error is structured (above the noise floor) and no candidate " \
-                              "improves held-out predictions significantly"
-    return "none", (f"the error is within the noise (only {max(structured, 0):.0%} of it is predictable from the "
-                    "state and actions) and no candidate improves held-out predictions significantly")
+        return "unexplained", (f"{structured:.0%} of the error is structured (above the noise floor); the best "
+                               f"candidate, {top.name}, {why or f'explains only {share:.0%} of it'}")
+    return "unexplained", (f"{structured:.0%} of the error is structured (above the noise floor) and no candidate "
+                           "improves held-out predictions significantly")
 
 
 def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None, add: list[str] = (),

@@ -31,7 +31,8 @@ SIGNIFICANCE_Z = 3.0
 MIN_IMPROVEMENT = 0.02       # of the error (MSE)
 LARGE_IMPROVEMENT = 0.25     # of the error (MSE): significant however unevenly spread
 BLOCK = 10                   # rows per block in the significance test
-PARSIMONY_Z = 2.0            # a richer candidate must beat a simpler one by this much to rank first
+PARSIMONY_Z = 2.0            # a richer candidate must beat a simpler one by this much to rank first,
+PARSIMONY_SHARE = 0.9        # and the simpler one remove less than this share of what it removes
 
 
 @dataclass
@@ -53,6 +54,42 @@ class Judgement:
 def explained_share(mse_before: float, mse_after: float, floor_mse: float) -> float:
     structured = mse_before - floor_mse
     return float(np.clip((mse_before - mse_after) / structured, 0.0, 1.0)) if structured > 0 else 0.0
+
+
+def at_bound(fit: EffectFit) -> list[str]:
+    """Parameters pushed against a bound that is not their nominal value."""
+    out = []
+    for p in fit.effect.parameters:
+        v = np.atleast_1d(np.asarray(fit.values[p.name], float))
+        span = p.upper - p.lower
+        if any(bound != p.nominal and np.any(np.abs(v - bound) <= 0.01 * span) for bound in (p.lower, p.upper)):
+            out.append(p.name)
+    return out
+
+
+def too_small(fit: EffectFit) -> bool:
+    """Every parameter within half the smallest realistic magnitude of its nominal value."""
+    sizes = []
+    for p in fit.effect.parameters:
+        if p.realistic is None:
+            continue
+        v = np.atleast_1d(np.asarray(fit.values[p.name], float))
+        nominal = np.atleast_1d(np.asarray(fit.nominal[p.name], float))
+        smallest = p.realistic[0] if p.signed else min(abs(x - p.nominal) for x in p.realistic)
+        sizes.append(np.abs(v - nominal).max() >= 0.5 * smallest)
+    return bool(sizes) and not any(sizes)
+
+
+def implausible(fit: EffectFit) -> str:
+    """Why a fitted effect cannot be the explanation ("" if it can): a value pushed against a
+    bound stands in for something else; one below half the smallest magnitude real robots show
+    is fitting noise or another effect's leftovers."""
+    stuck = at_bound(fit)
+    if stuck:
+        return f"needs {', '.join(stuck)} at the bound of its range"
+    if too_small(fit):
+        return "fits a value below half the smallest realistic magnitude"
+    return ""
 
 
 @dataclass
@@ -107,7 +144,9 @@ def prefer_simpler(ranking: list[Candidate]) -> list[Candidate]:
 
     Some effects look alike in data (extra derivative gain and joint damping, strength and both
     gains scaled): the one with fewer parameters is the explanation unless the richer one
-    predicts held-out rows significantly better (paired z >= 2, blocks of rows).
+    predicts held-out rows significantly better (paired z >= 2, blocks of rows) AND by a margin
+    (the simpler one removes less than 90 % of what it removes): with many rows, a richer
+    effect also wins significantly by fitting the bias that sensor noise leaves in contacts.
     """
     if len(ranking) < 2 or not ranking[0].judgement.significant:
         return ranking
@@ -117,7 +156,8 @@ def prefer_simpler(ranking: list[Candidate]) -> list[Candidate]:
             continue
         e_simple = (c.judgement.residual_after ** 2).mean(1)
         e_best = (best.judgement.residual_after ** 2).mean(1)
-        if _paired_z(e_simple - e_best) < PARSIMONY_Z:
+        close = c.judgement.removed >= PARSIMONY_SHARE * best.judgement.removed
+        if close or _paired_z(e_simple - e_best) < PARSIMONY_Z:
             return [c] + [x for x in ranking if x is not c]
     return ranking
 

@@ -26,7 +26,8 @@ import numpy as np
 
 from acn.models.diagnose.add import Added
 from acn.models.diagnose.compare import Comparison, group_errors
-from acn.models.diagnose.pipeline import Diagnosis, at_bound
+from acn.models.diagnose.pipeline import Diagnosis
+from acn.models.diagnose.rank import implausible
 from acn.models.diagnose.rank import Candidate
 
 HEADLINE = ("one-step teacher-forced prediction error on held-out rows: RMS over every compared channel of "
@@ -54,7 +55,7 @@ def _candidate(c: Candidate, floor_mse: float) -> dict:
     return {"name": c.name, "params": c.fit.effect.to_json(c.fit.values), "granularity": c.fit.granularity,
             "free_parameters": _free(c.fit), "explained": round(j.explained(floor_mse), 4),
             "removed": round(j.removed, 4), "z": round(j.z, 2), "significant": j.significant,
-            "at_bound": at_bound(c.fit), "score": round(c.score, 4)}
+            "implausible": implausible(c.fit), "score": round(c.score, 4)}
 
 
 def _added(a: Added, floor_mse: float) -> dict:
