@@ -27,10 +27,11 @@ demo: $(STAMP)
 	$(BIN)/acn-fit $(OUT)/trot_pb_mj --variant mujoco-jacobian --epochs 10 --no-oracles --out $(OUT)/acn_mujoco_jacobian --overwrite
 	@echo "dataset: $(OUT)/trot_pb_mj (LeRobotDataset('acn/trot_pb_mj', root='$(OUT)/trot_pb_mj'), HF_HUB_OFFLINE=1)"
 	@echo "correctors: $(OUT)/acn_inverse (default), $(OUT)/acn_paper, $(OUT)/acn_mujoco_jacobian (acn.models.Corrector.load(DIR)); metrics.json inside"
-	$(BIN)/acn-view $(OUT)/trot_pb_mj --corrector $(OUT)/acn_mujoco_jacobian --save $(OUT)/trot_pb_mj.rrd
+	$(BIN)/acn-view $(OUT)/trot_pb_mj --corrector $(OUT)/acn_inverse --save $(OUT)/trot_pb_mj.rrd
+	@echo "paired view (source, target, corrected target): rerun $(OUT)/trot_pb_mj.rrd"
 	# Measurements with two hidden effects (the answer goes to $(OUT)/hidden.answer.json), then the diagnosis:
 	# compare, where, rank the catalogue, add effects while the error falls, report.
-	$(BIN)/acn-collect --source mujoco --policy excite --episodes 8 --seconds 10 --seed 3 --workers 2 \
+	$(BIN)/acn-collect --source mujoco --policy excite --episodes 6 --seconds 8 --seed 3 --workers 2 \
 		--hidden-effect actuator_latency --hidden-effect joint_damping --out $(OUT)/hidden --overwrite
 	$(BIN)/acn-diagnose $(OUT)/hidden --model mujoco --auto --json $(OUT)/hidden.diagnosis.json \
 		--report $(OUT)/hidden.report.html --save-model $(OUT)/hidden.model.json

@@ -171,22 +171,6 @@ class MuJoCoBackend(Backend):
         for k, f in enumerate(FOOT_NAMES):
             self._foot_of_geom[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, f"{f}_foot")] = k
 
-    # ----- batch re-simulation (mujoco.rollout works on MuJoCo's full physics state) --------
-    PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS
-
-    def physics_state(self, state: np.ndarray) -> np.ndarray:
-        """MuJoCo's full physics state vector for one of our state vectors."""
-        self.set_state(state)
-        out = np.empty(mujoco.mj_stateSize(self.model, self.PHYSICS))
-        mujoco.mj_getState(self.model, self.data, out, self.PHYSICS)
-        return out
-
-    def state_from_physics(self, physics: np.ndarray) -> np.ndarray:
-        """Our state vector for a MuJoCo physics state (sensor channels: the last reading)."""
-        mujoco.mj_setState(self.model, self.data, physics, self.PHYSICS)
-        self._state = None
-        return self._compose_state(*self._read_dynamics())
-
     def _restore_initial(self) -> None:
         mujoco.mj_resetData(self.model, self.data)
 
