@@ -133,3 +133,43 @@ def test_one_batch_can_hold_many_models():
         with Resimulator("mujoco", c) as alone:
             np.testing.assert_allclose(together[i, :36], alone.run(s0[None], a[None]).state[0, 0, :36], atol=1e-12)
     assert np.abs(together[0, 24:36] - together[2, 24:36]).max() > 1e-3
+
+
+def test_hidden_effect_answer_lies_beside_the_dataset_never_inside(tmp_path, capsys):
+    from acn.cli import collect_main
+
+    out = tmp_path / "measured"
+    assert collect_main(["--source", "mujoco", "--policy", "stand", "--episodes", "1", "--seconds", "0.1",
+                         "--hidden-effect", "joint_damping:value=0.7", "--hidden-effect", "random", "--seed", "5",
+                         "--out", str(out)]) == 0
+    answer = json.loads((tmp_path / "measured.answer.json").read_text())
+    names = [e["name"] for e in answer["hidden_effects"]]
+    assert names[0] == "joint_damping" and answer["hidden_effects"][0]["params"] == {"value": 0.7}
+    assert len(names) == 2 and names[1] in EFFECT_NAMES and names[1] != "joint_damping"
+    info = (out / "meta" / "info.json").read_text()
+    assert "0.7," not in info and "0.7]" not in info and "hidden" not in info
+    assert json.loads(info)["acn"]["model_params"] == ModelParams().as_json()  # the nominal description only
+    assert not list(out.rglob("*answer*"))
+    # Overwriting without a hidden effect removes the stale answer.
+    assert collect_main(["--source", "mujoco", "--policy", "stand", "--episodes", "1", "--seconds", "0.1",
+                         "--out", str(out), "--overwrite"]) == 0
+    assert not (tmp_path / "measured.answer.json").exists()
+    capsys.readouterr()
+    for bad, message in (("warp", "unknown effect"), ("joint_damping:valu=1", "no parameter"),
+                         ("joint_damping:value=9", "outside its bounds"), ("joint_damping:value", "param=value")):
+        assert collect_main(["--hidden-effect", bad, "--out", str(tmp_path / "x")]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and message in err[0], err
+
+
+def test_random_hidden_effects_are_realistic():
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        e = parse_hidden("random", rng, SimConfig())
+        for p in e.effect.parameters:
+            if p.realistic is None:
+                continue
+            v = np.atleast_1d(np.asarray(e.values[p.name], float))
+            size = np.abs(v - p.nominal_for(SimConfig())) if p.signed else v
+            lo, hi = p.realistic
+            assert np.all((size >= lo - 1e-12) & (size <= hi + 1e-12)), (e.name, p.name, v)

@@ -16,7 +16,7 @@ import numpy as np
 from acn.models.diagnose.compare import Comparison, compare
 from acn.models.diagnose.fitting import EffectFit, default_granularity, fit_effect, refittable
 from acn.models.diagnose.problem import DiagnoseConfig, Problem
-from acn.models.diagnose.rank import Candidate, Judgement, implausible, judge, rank
+from acn.models.diagnose.rank import STRUCTURED_SHARE, Candidate, Judgement, implausible, judge, rank
 from acn.toolkit.effects import Model, get_effect
 
 AUTO_MIN_EXPLAINED = 0.05  # --auto stops when the best candidate explains less of what is left
@@ -80,6 +80,8 @@ def auto(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows: n
     added: list[Added] = []
     current, residual = first, base_residual
     while len(added) < cfg.auto_max:
+        if 1.0 - floor_mse / float(np.mean(residual ** 2)) < STRUCTURED_SHARE:
+            break  # what is left is noise
         best = next((c for c in ranking if c.name not in {a.name for a in added}), None)
         if best is None or not best.judgement.significant or best.judgement.explained(floor_mse) < AUTO_MIN_EXPLAINED \
                 or implausible(best.fit):
@@ -87,7 +89,7 @@ def auto(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows: n
         if progress:
             progress(f"adding {best.name}", None)
         step = add_effect(problem, current.model, best.name, cfg, judge_rows, residual, current, start=best.fit)
-        if not step.judgement.significant:
+        if not step.judgement.significant or implausible(step.fit):
             break
         added.append(step)
         current, residual = step.after, step.judgement.residual_after

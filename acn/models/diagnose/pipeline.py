@@ -29,13 +29,12 @@ from acn.datasets.measurements import Measurements
 from acn.models.diagnose.add import Added, add_effect, auto
 from acn.models.diagnose.compare import Comparison, compare, floor_of
 from acn.models.diagnose.problem import DiagnoseConfig, Problem, prepare
-from acn.models.diagnose.rank import Candidate, explained_share, implausible, rank
+from acn.models.diagnose.rank import STRUCTURED_SHARE, Candidate, explained_share, implausible, rank
 from acn.models.diagnose.where import breakdown
 from acn.toolkit.effects import Model, get_effect
 
 EXACT = 1e-3                  # headline error below which a model reproduces the data (float32 storage: ~1e-6)
 EFFECT_SHARE = 0.7            # of the structured error an effect must explain to be named
-STRUCTURED_SHARE = 0.15       # of the error that must be structured before anything is missing
 FLOOR_CANDIDATES = 2          # best candidates whose leftover residual also bounds the noise floor
 
 

@@ -31,6 +31,7 @@ SIGNIFICANCE_Z = 3.0
 MIN_IMPROVEMENT = 0.02       # of the error (MSE)
 LARGE_IMPROVEMENT = 0.25     # of the error (MSE): significant however unevenly spread
 BLOCK = 10                   # rows per block in the significance test
+STRUCTURED_SHARE = 0.15      # of the error that must be above the noise floor before an effect is missing
 PARSIMONY_Z = 2.0            # a richer candidate must beat a simpler one by this much to rank first,
 PARSIMONY_SHARE = 0.9        # and the simpler one remove less than this share of what it removes
 
