@@ -3,8 +3,8 @@
 ``add_effect`` fits the effect at the granularity the data support (shared by all joints, per
 joint type, per leg, per joint: a finer one must beat the coarser one significantly on
 held-out rows), refits on more rows, and compares the model before and after at every
-horizon. ``auto`` repeats rank -> add while the best candidate's held-out improvement is
-larger than the noise (significant, ``rank.judge``).
+horizon. ``auto`` repeats rank -> add while the best plausible candidate's held-out
+improvement is larger than the noise (significant, ``rank.judge``).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import numpy as np
 from acn.models.diagnose.compare import Comparison, compare
 from acn.models.diagnose.fitting import EffectFit, default_granularity, fit_effect, refittable
 from acn.models.diagnose.problem import DiagnoseConfig, Problem
-from acn.models.diagnose.rank import STRUCTURED_SHARE, Candidate, Judgement, implausible, judge, rank
+from acn.models.diagnose.rank import Candidate, Judgement, implausible, judge, rank
 from acn.toolkit.effects import Model, get_effect
 
 AUTO_MIN_EXPLAINED = 0.05  # --auto stops when the best candidate explains less of what is left
@@ -80,11 +80,9 @@ def auto(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows: n
     added: list[Added] = []
     current, residual = first, base_residual
     while len(added) < cfg.auto_max:
-        if 1.0 - floor_mse / float(np.mean(residual ** 2)) < STRUCTURED_SHARE:
-            break  # what is left is noise
-        best = next((c for c in ranking if c.name not in {a.name for a in added}), None)
-        if best is None or not best.judgement.significant or best.judgement.explained(floor_mse) < AUTO_MIN_EXPLAINED \
-                or implausible(best.fit):
+        best = next((c for c in ranking if c.name not in {a.name for a in added}
+                     and c.judgement.significant and not implausible(c.fit)), None)
+        if best is None or best.judgement.explained(floor_mse) < AUTO_MIN_EXPLAINED:
             break
         if progress:
             progress(f"adding {best.name}", None)

@@ -5,13 +5,12 @@ Each stage is a function of the previous stage's result (``compare``, ``where``,
 file, the HTML report and ``acn-view`` all read.
 
 Verdict:
-- ``none``: the model matches within the noise: the error is zero, or less than 15 % of it is
-  structured (above the noise floor), whatever the candidates would fit to it;
-- ``effect``: at least 15 % of the error is structured (above the noise floor) and the best
-  candidate (or, with ``--auto``, the effects added one after the other) significantly removes
-  at least 70 % of it, with a plausible magnitude (``rank.implausible``: not pushed against a
-  bound, not below half the smallest realistic magnitude);
-- ``unexplained``: at least 15 % of the error is structured, and no candidate explains it so.
+- ``effect``: a candidate (the best one whose held-out improvement is significant and whose
+  magnitude is plausible: ``rank.implausible``) explains at least 70 % of the error above the
+  noise floor; with ``--auto``, or the effects added one after the other do;
+- ``unexplained``: otherwise, when at least 15 % of the error is structured (above the floor);
+- ``none``: the model matches within the noise: the error is zero, or less structured than
+  that and no plausible candidate explains it.
 
 The noise floor is what ridge regressions on a library of state and action terms cannot
 predict (``noise``) of the model's held-out residual, or of what the best candidates leave,
@@ -72,26 +71,28 @@ def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Cand
     if before.headline < EXACT:
         return "none", f"the model reproduces the measurements (headline error {before.headline:.2g})"
     structured = 1.0 - floor_mse / mse if mse > 0 else 0.0
-    top = ranking[0] if ranking else None
-    if structured < STRUCTURED_SHARE:
-        best = f"; the best candidate, {top.name}, removes {top.judgement.removed:.1%} of it" if top else ""
-        return "none", (f"the model matches within the noise: only {max(structured, 0):.0%} of the error is "
-                        f"predictable from the state and actions{best}")
     if automatic and added:
         share = explained_share(mse, added[-1].judgement.mse_after, floor_mse)
         names = " + ".join(a.name for a in added)
-        if share >= EFFECT_SHARE and not any(implausible(a.fit) for a in added):
+        if share >= EFFECT_SHARE:
             return "effect", f"{names} explain {share:.0%} of the error above the noise floor"
-    if top is not None and top.judgement.significant:
-        share = top.judgement.explained(floor_mse)
-        why = implausible(top.fit)
-        if share >= EFFECT_SHARE and not why:
-            return "effect", (f"{top.name} explains {share:.0%} of the error above the noise floor "
-                              f"(held-out improvement {top.judgement.z:.1f} standard errors)")
-        return "unexplained", (f"{structured:.0%} of the error is structured (above the noise floor); the best "
-                               f"candidate, {top.name}, {why or f'explains only {share:.0%} of it'}")
-    return "unexplained", (f"{structured:.0%} of the error is structured (above the noise floor) and no candidate "
-                           "improves held-out predictions significantly")
+    plausible = [c for c in ranking if c.judgement.significant and not implausible(c.fit)]
+    top = plausible[0] if plausible else None
+    if top is not None and top.judgement.explained(floor_mse) >= EFFECT_SHARE:
+        skipped = [c.name for c in ranking[: ranking.index(top)]]
+        also = f"; ranked above it but implausible: {', '.join(skipped)}" if skipped else ""
+        return "effect", (f"{top.name} explains {top.judgement.explained(floor_mse):.0%} of the error above the noise "
+                          f"floor (held-out improvement {top.judgement.z:.1f} standard errors){also}")
+    best = ranking[0] if ranking else None
+    if structured >= STRUCTURED_SHARE:
+        why = ("no candidate improves held-out predictions significantly" if best is None
+               or not best.judgement.significant else
+               f"the best plausible candidate, {top.name}, explains only {top.judgement.explained(floor_mse):.0%} of it"
+               if top is not None else f"the best candidate, {best.name}, {implausible(best.fit)}")
+        return "unexplained", f"{structured:.0%} of the error is structured (above the noise floor); {why}"
+    extra = f"; the best candidate, {best.name}, removes {best.judgement.removed:.1%} of it" if best else ""
+    return "none", (f"the model matches within the noise: only {max(structured, 0):.0%} of the error is predictable "
+                    f"from the state and actions and no plausible effect explains it{extra}")
 
 
 def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None, add: list[str] = (),

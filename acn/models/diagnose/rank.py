@@ -31,6 +31,7 @@ SIGNIFICANCE_Z = 3.0
 MIN_IMPROVEMENT = 0.02       # of the error (MSE)
 LARGE_IMPROVEMENT = 0.25     # of the error (MSE): significant however unevenly spread
 BLOCK = 10                   # rows per block in the significance test
+SMALLEST_SHARE = 0.75        # of the smallest realistic magnitude a named effect must reach
 STRUCTURED_SHARE = 0.15      # of the error that must be above the noise floor before an effect is missing
 PARSIMONY_Z = 2.0            # a richer candidate must beat a simpler one by this much to rank first,
 PARSIMONY_SHARE = 0.9        # and the simpler one remove less than this share of what it removes
@@ -69,7 +70,7 @@ def at_bound(fit: EffectFit) -> list[str]:
 
 
 def too_small(fit: EffectFit) -> bool:
-    """Every parameter within half the smallest realistic magnitude of its nominal value."""
+    """Every parameter closer to its nominal value than 3/4 of the smallest realistic magnitude."""
     sizes = []
     for p in fit.effect.parameters:
         if p.realistic is None:
@@ -77,19 +78,20 @@ def too_small(fit: EffectFit) -> bool:
         v = np.atleast_1d(np.asarray(fit.values[p.name], float))
         nominal = np.atleast_1d(np.asarray(fit.nominal[p.name], float))
         smallest = p.realistic[0] if p.signed else min(abs(x - p.nominal) for x in p.realistic)
-        sizes.append(np.abs(v - nominal).max() >= 0.5 * smallest)
+        sizes.append(np.abs(v - nominal).max() >= SMALLEST_SHARE * smallest)
     return bool(sizes) and not any(sizes)
 
 
 def implausible(fit: EffectFit) -> str:
     """Why a fitted effect cannot be the explanation ("" if it can): a value pushed against a
-    bound stands in for something else; one below half the smallest magnitude real robots show
-    is fitting noise or another effect's leftovers."""
+    bound stands in for something else; one below 3/4 of the smallest magnitude real robots show
+    is fitting noise or another effect's leftovers (sensor noise in joint readings biases the
+    contact forces a re-simulation starts with, and encoder offsets of a few mrad fit that)."""
     stuck = at_bound(fit)
     if stuck:
         return f"needs {', '.join(stuck)} at the bound of its range"
     if too_small(fit):
-        return "fits a value below half the smallest realistic magnitude"
+        return "fits a value below 3/4 of the smallest realistic magnitude"
     return ""
 
 
