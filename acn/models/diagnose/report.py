@@ -167,10 +167,11 @@ def write_html(d: Diagnosis, path: str | Path) -> Path:
     fig = go.Figure()
     for name, t in w["trends"].items():
         if t["bins"]:
-            fig.add_trace(go.Scatter(x=[(b["from"] + b["to"]) / 2 for b in t["bins"]], y=[b["error"] for b in t["bins"]],
-                                     mode="lines+markers", name=f"{name} (rho {t['rank_correlation']:.2f})"))
-    fig.update_layout(title="Joint error against joint speed, torque and action change (quartile bins)",
-                      xaxis_title="variable (its own units)", yaxis_title="normalised RMS")
+            fig.add_trace(go.Scatter(x=[f"Q{i + 1}" for i in range(len(t["bins"]))], y=[b["error"] for b in t["bins"]],
+                                     text=[f"{b['from']:.3g}..{b['to']:.3g}" for b in t["bins"]],
+                                     mode="lines+markers", name=f"{name} (rank correlation {t['rank_correlation']:.2f})"))
+    fig.update_layout(title="Joint error against its speed, torque and action change (quartiles of each, low to high)",
+                      xaxis_title="quartile of the variable (hover: its range)", yaxis_title="normalised RMS")
     figs.append(fig)
     fig = go.Figure(go.Bar(x=[c.name for c in d.ranking], y=[c.judgement.explained(d.floor_mse) for c in d.ranking],
                            marker_color=["#2a9d8f" if c.judgement.significant else "#bbbbbb" for c in d.ranking]))
@@ -191,7 +192,7 @@ def write_html(d: Diagnosis, path: str | Path) -> Path:
         f"<tr><td>{c.name}</td><td>{c.fit.granularity}</td><td>{c.judgement.explained(d.floor_mse):.0%}</td>"
         f"<td>{c.judgement.removed:+.1%}</td><td>{c.judgement.z:.1f}</td>"
         f"<td>{html.escape(_params_text(c.fit))}</td></tr>" for c in d.ranking)
-    added = "".join(f"<li><b>{a.name}</b> {html.escape(json.dumps(a.fit.effect.to_json(a.fit.values)))}: headline "
+    added = "".join(f"<li><b>{a.name}</b> ({a.fit.granularity}) {html.escape(_params_text(a.fit))}: headline "
                     f"{a.before.headline:.4f} &rarr; {a.after.headline:.4f}</li>" for a in d.added)
     body = f"""<!doctype html><html><head><meta charset="utf-8"><title>acn-diagnose: {html.escape(d.measurements)}</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
