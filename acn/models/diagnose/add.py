@@ -4,7 +4,9 @@
 joint type, per leg, per joint: a finer one must beat the coarser one significantly on
 held-out rows), refits on more rows, and compares the model before and after at every
 horizon. ``auto`` repeats rank -> add while the best plausible candidate's held-out
-improvement is larger than the noise (significant, ``rank.judge``).
+improvement is larger than the noise (significant, ``rank.judge``) and removes at least 5 % of
+the error: after the right effects, a noisy log still lets armature or damping fit a few
+per cent of the contact bias that noise in joint readings leaves.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from acn.models.diagnose.rank import Candidate, Judgement, implausible, judge, r
 from acn.toolkit.effects import Model, get_effect
 
 AUTO_MIN_EXPLAINED = 0.05  # --auto stops when the best candidate explains less of what is left
+AUTO_MIN_REMOVED = 0.05    # or removes less of the whole error (what noise-fitting effects manage)
 
 
 @dataclass
@@ -82,7 +85,8 @@ def auto(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows: n
     while len(added) < cfg.auto_max:
         best = next((c for c in ranking if c.name not in {a.name for a in added}
                      and c.judgement.significant and not implausible(c.fit)), None)
-        if best is None or best.judgement.explained(floor_mse) < AUTO_MIN_EXPLAINED:
+        if best is None or best.judgement.explained(floor_mse) < AUTO_MIN_EXPLAINED \
+                or best.judgement.removed < AUTO_MIN_REMOVED:
             break
         if progress:
             progress(f"adding {best.name}", None)
