@@ -46,7 +46,7 @@ CASES = {  # effect -> (hidden params, policy that excites it)
     "actuator_latency": ({"seconds": 0.012}, "excite"),
     "motor_strength": ({"scale": 0.8}, "excite"),
     "torque_limit": ({"value": 18.0}, "excite"),
-    "pd_gains": ({"kp_scale": 0.75, "kd_scale": 0.8}, "excite"),
+    "pd_gains": ({"kp_scale": 0.85, "kd_scale": 0.55}, "excite"),  # equal scales would be motor_strength
     "payload": ({"mass": 2.0, "com_x": 0.04, "com_y": -0.02, "com_z": 0.03}, "excite"),
     "ground_friction": ({"value": 0.4}, "trot"),
     "encoder_offset": ({"value": OFFSETS}, "excite"),
@@ -75,6 +75,16 @@ def test_each_hidden_effect_is_ranked_first_fitted_and_removed(tmp_path, name):
     added = d.added[0]
     assert added.judgement.removed >= 0.8 and added.judgement.explained(d.floor_mse) >= 0.8
     assert added.after.headline < added.before.headline
+
+
+def test_gains_scaled_alike_are_named_the_simpler_motor_strength(tmp_path):
+    # Both PD gains scaled by about the same factor is a weaker motor: one parameter explains it.
+    data = measured(tmp_path, {"pd_gains": {"kp_scale": 0.75, "kd_scale": 0.8}})
+    d = diagnose(data, Model.parse("mujoco"), FAST)
+    scores = {c.name: c.judgement.removed for c in d.ranking}
+    assert d.ranking[0].name == "motor_strength", [(c.name, c.score) for c in d.ranking[:3]]
+    assert scores["motor_strength"] >= 0.9 * scores["pd_gains"]
+    assert 0.7 <= float(np.mean(d.ranking[0].fit.values["scale"])) <= 0.85
 
 
 def test_two_effects_together_are_both_found(tmp_path):
