@@ -3,12 +3,31 @@
 from __future__ import annotations
 
 import os
+import tempfile
 
 import pytest
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
+from hypothesis import settings  # noqa: E402
+from hypothesis.configuration import set_hypothesis_home_dir  # noqa: E402
+
 from acn.toolkit.collector import CollectConfig, collect_episodes  # noqa: E402
+
+set_hypothesis_home_dir(tempfile.mkdtemp(prefix="acn-hypothesis-"))  # no .hypothesis/ in the tree
+settings.register_profile("acn", database=None)
+settings.load_profile("acn")
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _outside_the_tree(tmp_path_factory):
+    """Run every test from a temporary directory: what a library writes into the working
+    directory (MuJoCo's MUJOCO_LOG.TXT when a test blows a simulation up on purpose) stays out
+    of the repository."""
+    before = os.getcwd()
+    os.chdir(tmp_path_factory.mktemp("cwd"))
+    yield
+    os.chdir(before)
 
 
 @pytest.fixture(scope="session")

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from acn.datasets import schema
-from acn.datasets.reader import read_info
+from acn.datasets.reader import read_columns, read_info
 from acn.errors import UserError
 from acn.toolkit.backends import SimConfig
 from acn.toolkit.state import ACTION_DIM, GROUPS, SLICES, STATE_DIM, STATE_NAMES
@@ -83,26 +83,17 @@ class Measurements:
 
 def load_measurements(path: str | Path, side: str = "source") -> Measurements:
     """Read measurements from a dataset (see module docstring); ``side`` for paired datasets."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
     if side not in SIDES:
         raise UserError(f"side must be one of {', '.join(SIDES)}, got {side!r}")
     path = Path(path)
-    info = read_info(path)
-    acn = info[schema.ACN_KEY]
-    if acn.get("state_names") != list(STATE_NAMES):
-        raise UserError(f"{path} has different state channels than this toolkit")
-    if side == "target" and not acn.get("paired"):
+    acn = read_info(path)[schema.ACN_KEY]
+    if side == "target" and not acn["paired"]:
         raise UserError(f"{path} is not paired: it has no target side")
-    try:
-        ds = LeRobotDataset(f"acn/{path.name}", root=path)
-    except Exception as e:  # noqa: BLE001 - lerobot raises many kinds on a broken dataset
-        raise UserError(f"cannot read {path} as a LeRobot dataset: {e}".splitlines()[0]) from None
     key = (lambda k: k) if side == "source" else schema.target_key
-    cols = ds.hf_dataset.with_format("numpy")[:]
-    get = lambda k: np.asarray(cols[k], dtype=np.float64)  # noqa: E731
-    state, action, next_state = get(key(schema.STATE)), get(key(schema.ACTION)), get(key(schema.NEXT_STATE))
-    effort = get(key(schema.EFFORT)) if key(schema.EFFORT) in cols else np.full_like(action, np.nan)
+    cols, _ = read_columns(path, [key(schema.STATE), key(schema.ACTION), key(schema.NEXT_STATE)]
+                           + ["episode_index", "frame_index"], optional=(key(schema.EFFORT),))
+    state, action, next_state = cols[key(schema.STATE)], cols[key(schema.ACTION)], cols[key(schema.NEXT_STATE)]
+    effort = cols.get(key(schema.EFFORT), np.full_like(action, np.nan))
     missing = list(acn.get("missing_channels", []))
     lacking = [g for g in REQUIRED_GROUPS if all(n in missing for n in GROUPS[g])]
     if lacking:
@@ -112,8 +103,8 @@ def load_measurements(path: str | Path, side: str = "source") -> Measurements:
     control = SimConfig(physics_dt=acn["physics_dt"], substeps=acn["substeps"], action_mode=acn["action_mode"],
                         kp=acn["kp"], kd=acn["kd"], torque_limit=acn["torque_limit"])
     who = (acn.get(side) or {}).get("simulator") or side
-    return Measurements(state, action, next_state, effort, np.asarray(cols["episode_index"], dtype=np.int64),
-                        np.asarray(cols["frame_index"], dtype=np.int64), control, acn,
+    return Measurements(state, action, next_state, effort, cols["episode_index"].astype(np.int64),
+                        cols["frame_index"].astype(np.int64), control, acn,
                         description=f"{path.name} ({who}{', ' + side + ' side' if acn.get('paired') else ''})",
                         missing=missing)
 

@@ -11,6 +11,7 @@ files), and skips rows with non-finite values (counted in ``skipped_nonfinite``)
 from __future__ import annotations
 
 import json
+import logging
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,7 +20,7 @@ import numpy as np
 
 from acn.datasets import schema
 from acn.errors import UserError
-from acn.toolkit.state import STATE_NAMES, WRAPPED_INDEX, wrap_angle
+from acn.toolkit.state import ACTION_DIM, STATE_DIM, WRAPPED_INDEX, wrap_angle
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
@@ -36,9 +37,52 @@ def read_info(path: str | Path) -> dict:
         info = json.loads(p.read_text())
     except json.JSONDecodeError as e:
         raise UserError(f"{p} is not valid JSON: {e}") from None
-    if schema.ACN_KEY not in info:
+    if not isinstance(info, dict) or schema.ACN_KEY not in info:
         raise UserError(f"{path} was not written by acn-collect (no '{schema.ACN_KEY}' block in meta/info.json)")
+    problem = schema.acn_block_problem(info[schema.ACN_KEY])
+    if problem:
+        raise UserError(f"{path} {problem}")
     return info
+
+
+_WIDTH = {schema.STATE: STATE_DIM, schema.NEXT_STATE: STATE_DIM, schema.ACTION: ACTION_DIM, schema.EFFORT: ACTION_DIM}
+INDEX_COLUMNS = ("episode_index", "frame_index", "timestamp")
+
+
+def read_columns(path: str | Path, keys: list[str], optional: tuple[str, ...] = ()) -> tuple[dict[str, np.ndarray], int]:
+    """``keys`` (and those of ``optional`` present) of a dataset as float64 arrays, read through
+    ``LeRobotDataset``, and its fps. A broken file, a missing column or one of the wrong width is
+    a one-line ``UserError`` (the libraries' own error logging is silenced while reading)."""
+    import pyarrow.parquet as pq
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    path = Path(path)
+    for f in sorted(path.rglob("*.parquet")):
+        try:
+            pq.ParquetFile(f).metadata
+        except Exception as e:  # noqa: BLE001 - pyarrow raises several kinds on a broken file
+            raise UserError(f"{f} is not a readable Parquet file: {str(e).splitlines()[0]}") from None
+    logging.disable(logging.CRITICAL)
+    try:
+        ds = LeRobotDataset(f"acn/{path.name}", root=path)
+        present = set(ds.hf_dataset.column_names)
+        if missing := [k for k in keys if k not in present]:
+            raise UserError(f"{path} has no column {missing[0]!r}")
+        wanted = list(keys) + [k for k in optional if k in present]
+        cols = ds.hf_dataset.with_format("numpy", columns=wanted)[:]
+        out = {k: np.asarray(cols[k], dtype=np.float64) for k in wanted}
+        fps = int(ds.meta.fps)
+    except UserError:
+        raise
+    except Exception as e:  # noqa: BLE001 - lerobot raises many kinds on a broken dataset
+        raise UserError(f"cannot read {path} as a LeRobot dataset: {e}".splitlines()[0]) from None
+    finally:
+        logging.disable(logging.NOTSET)
+    for k, v in out.items():
+        width = _WIDTH.get(k.removeprefix(schema.TARGET_PREFIX))
+        if (v.ndim, v.shape[1:]) != ((2, (width,)) if width else (1, ())):
+            raise UserError(f"{path}: column {k!r} has shape {v.shape[1:]}, expected {(width,) if width else ()}")
+    return out, fps
 
 
 def state_difference(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -94,8 +138,6 @@ def percentile_filter(gap: np.ndarray, percentile: float = 70.0) -> np.ndarray:
 
 def load_paired(paths: list[str | Path]) -> PairedTransitions:
     """Read paired datasets written by ``acn-collect`` (see module docstring)."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
     if not paths:
         raise UserError("no dataset given")
     parts, first, episode_offset, skipped = [], None, 0, 0
@@ -105,21 +147,15 @@ def load_paired(paths: list[str | Path]) -> PairedTransitions:
         acn = info[schema.ACN_KEY]
         if not acn.get("paired"):
             raise UserError(f"{path} is not a paired dataset (recorded without --target)")
-        if acn.get("state_names") != list(STATE_NAMES):
-            raise UserError(f"{path} has different state channels than this toolkit")
         if first is None:
             first = acn
         for key in _MUST_MATCH:
             if acn.get(key) != first.get(key):
                 raise UserError(f"{path} differs from {paths[0]} in {key}: {acn.get(key)!r} vs {first.get(key)!r}")
-        try:
-            ds = LeRobotDataset(f"acn/{path.name}", root=path)
-        except Exception as e:  # noqa: BLE001 - lerobot raises many kinds on a broken dataset
-            raise UserError(f"cannot read {path} as a LeRobot dataset: {e}".splitlines()[0]) from None
-        cols = ds.hf_dataset.with_format("numpy")[:]
-        arrays = [np.asarray(cols[k], dtype=np.float64) for k in (
-            schema.STATE, schema.ACTION, schema.NEXT_STATE, schema.target_key(schema.STATE),
-            schema.target_key(schema.ACTION), schema.target_key(schema.NEXT_STATE))]
+        keys = [schema.STATE, schema.ACTION, schema.NEXT_STATE, schema.target_key(schema.STATE),
+                schema.target_key(schema.ACTION), schema.target_key(schema.NEXT_STATE)]
+        cols, _ = read_columns(path, keys + ["episode_index"])
+        arrays = [cols[k] for k in keys]
         episode = np.asarray(cols["episode_index"], dtype=np.int64) + episode_offset
         finite = np.all([np.isfinite(a).all(axis=1) for a in arrays], axis=0)
         skipped += int((~finite).sum())
@@ -163,23 +199,12 @@ class RecordedFrames:
 
 
 def load_frames(path: str | Path) -> RecordedFrames:
-    """Read one ``acn-collect`` dataset, paired or unpaired, through ``LeRobotDataset``."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
+    """Read one ``acn-collect`` dataset, paired or not, through ``LeRobotDataset``."""
     path = Path(path)
-    info = read_info(path)
-    acn = info[schema.ACN_KEY]
-    if acn.get("state_names") != list(STATE_NAMES):
-        raise UserError(f"{path} has different state channels than this toolkit")
-    try:
-        ds = LeRobotDataset(f"acn/{path.name}", root=path)
-    except Exception as e:  # noqa: BLE001 - lerobot raises many kinds on a broken dataset
-        raise UserError(f"cannot read {path} as a LeRobot dataset: {e}".splitlines()[0]) from None
-    paired = bool(acn.get("paired"))
+    acn = read_info(path)[schema.ACN_KEY]
+    paired = acn["paired"]
     keys = [schema.STATE, schema.ACTION] + ([schema.target_key(schema.STATE), schema.target_key(schema.ACTION)]
                                             if paired else [])
-    cols = ds.hf_dataset.with_format("numpy", columns=keys + ["episode_index", "frame_index", "timestamp"])[:]
-    arrays = [np.asarray(cols[k], dtype=np.float64) for k in keys]
-    return RecordedFrames(path, acn, int(ds.meta.fps), np.asarray(cols["episode_index"], dtype=np.int64),
-                          np.asarray(cols["frame_index"], dtype=np.int64),
-                          np.asarray(cols["timestamp"], dtype=np.float64), *arrays)
+    cols, fps = read_columns(path, keys + list(INDEX_COLUMNS))
+    return RecordedFrames(path, acn, fps, cols["episode_index"].astype(np.int64),
+                          cols["frame_index"].astype(np.int64), cols["timestamp"], *[cols[k] for k in keys])

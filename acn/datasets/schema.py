@@ -51,3 +51,58 @@ def features(paired: bool) -> dict[str, dict]:
         out.update({target_key(k): v for k, v in per_sim.items()})
     out[DONE] = flag
     return out
+
+
+def _number(positive: bool):
+    def ok(v) -> bool:
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and v == v and abs(v) != float("inf") \
+            and (v > 0 if positive else v >= 0)
+    return ok
+
+
+def _simulator(v) -> bool:
+    return isinstance(v, dict) and isinstance(v.get("simulator"), str)
+
+
+# Keys of the ``acn`` block every reader relies on, and what each must be.
+REQUIRED = {
+    "paired": (lambda v: isinstance(v, bool), "true or false"),
+    "source": (_simulator, 'an object with a "simulator" name'),
+    "target": (lambda v: v is None or _simulator(v), 'null or an object with a "simulator" name'),
+    "physics_dt": (_number(True), "a number > 0 (s)"),
+    "substeps": (lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 1, "a whole number >= 1"),
+    "control_hz": (_number(True), "a number > 0 (Hz)"),
+    "action_mode": (lambda v: v in ("position", "torque"), '"position" or "torque"'),
+    "kp": (_number(False), "a number >= 0"),
+    "kd": (_number(False), "a number >= 0"),
+    "torque_limit": (_number(True), "a number > 0 (N m)"),
+    "model_params": (lambda v: isinstance(v, dict), "an object"),
+    "policy": (lambda v: isinstance(v, str), "a name"),
+    "state_names": (lambda v: v == list(STATE_NAMES), f"this toolkit's {STATE_DIM} state channel names"),
+    "action_names": (lambda v: v == list(ACTION_NAMES), f"this toolkit's {ACTION_DIM} joint names"),
+}
+OPTIONAL = {
+    "missing_channels": (lambda v: isinstance(v, list) and all(n in STATE_NAMES for n in v),
+                         "a list of state channel names"),
+}
+
+
+def acn_block_problem(acn) -> str | None:
+    """What is wrong with a dataset's ``acn`` block, as a phrase after the dataset's path
+    ("DIR has no 'kp' in ..."), or None if every reader can use it."""
+    if not isinstance(acn, dict):
+        return f"has an '{ACN_KEY}' block that is not an object"
+    for key, (ok, what) in REQUIRED.items():
+        if key == "state_names" and acn.get(key) != list(STATE_NAMES):
+            return "has different state channels than this toolkit"
+        if key not in acn:
+            return f"has no {key!r} in its '{ACN_KEY}' block (meta/info.json)"
+        if not ok(acn[key]):
+            return f"has '{ACN_KEY}.{key}' = {acn[key]!r:.60} in meta/info.json; it must be {what}"
+    for key, (ok, what) in OPTIONAL.items():
+        if key in acn and not ok(acn[key]):
+            return f"has '{ACN_KEY}.{key}' = {acn[key]!r:.60} in meta/info.json; it must be {what}"
+    if abs(acn["physics_dt"] * acn["substeps"] * acn["control_hz"] - 1.0) > 1e-6:
+        return (f"has inconsistent rates in meta/info.json: physics_dt {acn['physics_dt']} s x substeps "
+                f"{acn['substeps']} is not one control period (control_hz {acn['control_hz']})")
+    return None

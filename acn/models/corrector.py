@@ -15,7 +15,6 @@ from typing import Iterator
 
 import numpy as np
 import torch
-from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 from torch import nn
 
@@ -119,8 +118,12 @@ class Corrector(nn.Module):
             model = cls(config)
             tensors = load_file(str(d / WEIGHTS))
             model.load_state_dict(tensors, strict=True)
-        except (SafetensorError, RuntimeError, KeyError, ValueError, TypeError, OSError) as e:
-            raise UserError(f"{d / WEIGHTS} is corrupt or does not match its config: {str(e).splitlines()[0]}") from None
+            probe = model.correct(np.zeros((1, STATE_DIM)), np.zeros((1, ACTION_DIM)))  # config and weights agree
+        except Exception as e:  # noqa: BLE001 - a broken config or weights file can fail in many ways
+            raise UserError(f"{d / WEIGHTS} is corrupt or does not match its config: "
+                            f"{(str(e).splitlines() or [type(e).__name__])[0]}") from None
+        if not np.isfinite(probe).all():
+            raise UserError(f"{d / WEIGHTS} gives non-finite corrections (corrupt weights or normalisation)")
         return model.freeze()
 
 

@@ -23,7 +23,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 from torch import nn
 
@@ -135,8 +134,9 @@ class WalkingPolicy(nn.Module):
         try:
             model = cls(config)
             model.load_state_dict(load_file(str(d / WEIGHTS)), strict=True)
-        except (SafetensorError, RuntimeError, KeyError, ValueError, TypeError, OSError) as e:
-            raise UserError(f"{d / WEIGHTS} is corrupt or does not match its config: {str(e).splitlines()[0]}") from None
+        except Exception as e:  # noqa: BLE001 - a broken config or weights file can fail in many ways
+            raise UserError(f"{d / WEIGHTS} is corrupt or does not match its config: "
+                            f"{(str(e).splitlines() or [type(e).__name__])[0]}") from None
         return model
 
 

@@ -292,7 +292,7 @@ def _scan_start(residual, z0: np.ndarray, free: Together, lo: np.ndarray, hi: np
     target += [None] * (len(z0) - len(target))  # effects refitted along stay where they are
     scale = free.scale()
     direction = np.array([(t / s if t is not None else z) for t, s, z in zip(target, scale, z0)]) - z0
-    if not np.any(direction):
+    if np.abs(direction).max() < 1e-3:  # already there (a start from an earlier fit): refine from it
         return z0, residual(z0.reshape(-1, 1))[:, 0], True
     steps = np.array([0.0, 0.25, 0.5, 1.0, 1.6, 2.5])
     points = np.clip(z0[:, None] + direction[:, None] * steps[None], lo[:, None], hi[:, None])
