@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from acn.models.diagnose.compare import Comparison, compare
-from acn.models.diagnose.fitting import EffectFit, default_granularity, fit_effect, refittable
+from acn.models.diagnose.fitting import EffectFit, default_granularity, fit_effect, instrumental_refit, refittable
 from acn.models.diagnose.problem import DiagnoseConfig, Problem
 from acn.models.diagnose.rank import Candidate, Judgement, implausible, judge, rank
 from acn.toolkit.effects import Model, get_effect
@@ -68,6 +68,7 @@ def choose_fit(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, j
     if len(more) > len(rows):  # refine on more rows, starting from the chosen values
         fit = fit_effect(problem, model, effect, fit.granularity, more, start=fit.values, max_iter=6,
                          refit=refittable(model))
+    fit = instrumental_refit(problem, model, fit, more if len(more) > len(rows) else rows, refit=refittable(model))
     return fit, judge(problem, fit.model, judge_rows, base_residual)
 
 
