@@ -61,13 +61,10 @@ def test_each_hidden_effect_is_ranked_first_fitted_and_removed(tmp_path, name):
     assert d.ranking[0].name == name, [(c.name, c.score) for c in d.ranking[:3]]
     assert d.verdict == "effect", d.reason
     fitted = d.added[0].fit.values
-    # Twelve encoder offsets trade off through the feet's contacts: the offsets as a whole are found
-    # within 35 % (measured ~30 % on 200 rows), each other parameter within 20 % (README, issue note).
-    rel = 0.35 if name == "encoder_offset" else 0.2
     for key, true in params.items():
         if key.startswith("com_"):
             continue
-        assert close(fitted[key], true, rel), (key, fitted[key], true)
+        assert close(fitted[key], true), (key, fitted[key], true)
     if name == "payload":
         com = np.array([fitted[k] for k in ("com_x", "com_y", "com_z")])
         true = np.array([params[k] for k in ("com_x", "com_y", "com_z")])
@@ -117,10 +114,12 @@ def noisy_logs(tmp_path_factory):
 
     root = tmp_path_factory.mktemp("logs")
     springs = lambda spec: [j.stiffness.__setitem__(0, 3.0) for j in spec.joints if j.name != "root"]  # noqa: E731
+    friction = lambda spec: [setattr(j, "frictionloss", 0.3) for j in spec.joints if j.name != "root"]  # noqa: E731
     out = {}
     for name, spec in {"nominal": LogSpec(noise=1.0, seed=1),
                        "latency": LogSpec(noise=1.0, seed=3, latency_steps=15),
-                       "springs": LogSpec(noise=1.0, seed=2, spec_edit=springs)}.items():
+                       "springs": LogSpec(noise=1.0, seed=2, spec_edit=springs),
+                       "friction": LogSpec(noise=1.0, seed=4, seconds=10.0, episodes=4, spec_edit=friction)}.items():
         write_log(root / f"{name}.csv", spec)
         out[name], _ = import_log(root / f"{name}.csv", root / name, ImportConfig(50, 60.0, 1.5, 33.5))
     return out
@@ -136,6 +135,23 @@ def test_noisy_log_from_another_controller_finds_the_latency(noisy_logs):
     d = diagnose(load_measurements(noisy_logs["latency"]), Model.parse("mujoco"), FAST, add=["actuator_latency"])
     assert d.ranking[0].name == "actuator_latency" and d.verdict == "effect", d.reason
     assert close(d.added[0].fit.values["seconds"], 0.015, rel=0.15)
+
+
+def test_noisy_joint_readings_do_not_bias_the_fitted_friction(noisy_logs):
+    """Least squares from noisy start states over-estimates friction; the instrumental refit does not."""
+    from acn.models.diagnose.fitting import fit_effect, instrumental_refit
+    from acn.models.diagnose.problem import prepare
+
+    cfg = DiagnoseConfig(horizons=(1,), fit_rows=1500)
+    problem = prepare(load_measurements(noisy_logs["friction"]), Model.parse("mujoco"), cfg)
+    rows = problem.sample(problem.fit_rows, cfg.fit_rows)
+    ls = fit_effect(problem, Model.parse("mujoco"), get_effect("joint_friction"), "shared", rows)
+    iv = instrumental_refit(problem, Model.parse("mujoco"), ls, rows)
+    ls_value, iv_value = float(np.mean(ls.values["value"])), float(np.mean(iv.values["value"]))
+    assert ls_value > 0.33, ls_value  # the bias (measured 0.375 here)
+    # Friction's sign of a noisy speed is nonlinear in the noise, which instruments cannot undo
+    # entirely (measured 0.347 here; 0.30 on benchmarks/diagnose_cases.py's friction log).
+    assert abs(iv_value - 0.3) <= 0.2 * 0.3 and iv_value < ls_value - 0.01, (ls_value, iv_value)
 
 
 def test_physics_outside_the_catalogue_is_unexplained(noisy_logs):
