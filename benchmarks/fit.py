@@ -1,9 +1,12 @@
 """ACN training speed, printed as name=value lines, on the same data and network in one run.
 
 baseline_samples_per_s   the paper authors' loop: a per-sample torch Dataset of tensors and a
-                         DataLoader (batch 256, shuffle), ActionNet + JacobianNet, Adam
-fit_samples_per_s        acn-fit's loop (acn.models.fit.train): tensors held whole, index batches,
-                         fused Adam, bf16 autocast where the CPU has native bf16 (fit_bf16=1)
+                         DataLoader (batch 256, shuffle), ActionNet + JacobianNet, their loss
+                         (J delta_a by torch.bmm, autograd), Adam
+fit_samples_per_s        acn-fit's loop (acn.models.fit.train): tensors held whole, batches gathered
+                         into preallocated buffers, one flat parameter buffer with fused Adam, bf16
+                         weights where the CPU has native bf16 (fit_bf16=1), the loss's gradient
+                         written out
 fit_speedup              their ratio; target >= 2.5
 fit_gflops               training FLOP/s of acn-fit's loop (forward + backward ~ 3x forward)
 matmul_gflops            this machine's float32 matmul rate on the network's widest layer shape
@@ -27,7 +30,7 @@ import time
 import torch
 from torch.utils.data import DataLoader, Dataset
 
-from acn.models.acn import INPUT_CHANNELS, OUTPUT_CHANNELS, acn_loss
+from acn.models.acn import INPUT_CHANNELS, OUTPUT_CHANNELS
 from acn.models.corrector import Corrector, default_config
 from acn.models.fit import FitConfig, Split, train
 
@@ -47,6 +50,14 @@ class PerSampleDataset(Dataset):
         return {"state": self.state[i], "action": self.action[i], "delta_s": self.delta_s[i]}
 
 
+def paper_loss(delta_a: torch.Tensor, jacobian: torch.Tensor, residual: torch.Tensor, lambda_l1: float):
+    """The paper's loss as the authors compute it (and acn_loss did before its gradient was written
+    out): J delta_a by torch.bmm, autograd for the rest."""
+    predicted = torch.bmm(jacobian, delta_a.unsqueeze(-1)).squeeze(-1)
+    fit = (predicted - residual).pow(2).mean()
+    return fit + lambda_l1 * delta_a.abs().sum(dim=1).mean(), fit
+
+
 def baseline(model: Corrector, x: torch.Tensor, r: torch.Tensor, epochs: int) -> float:
     ds = PerSampleDataset(x[:, :-N_ACT].clone(), x[:, -N_ACT:].clone(), r.clone())
     loader = DataLoader(ds, batch_size=256, shuffle=True)
@@ -57,7 +68,7 @@ def baseline(model: Corrector, x: torch.Tensor, r: torch.Tensor, epochs: int) ->
         for batch in loader:
             inp = torch.cat([batch["state"], batch["action"]], dim=-1)
             delta_a, jac = model.net(inp)
-            loss, _ = acn_loss(delta_a, jac, batch["delta_s"], 0.01)
+            loss, _ = paper_loss(delta_a, jac, batch["delta_s"], 0.01)
             opt.zero_grad()
             loss.backward()
             opt.step()

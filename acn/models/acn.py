@@ -81,12 +81,38 @@ class ActionCorrectionNetwork(nn.Module):
         return delta_a, self.jacobian_net(x).view(-1, self.n_out, self.n_action)
 
 
+class _ACNLoss(torch.autograd.Function):
+    """``acn_loss`` with its gradient written out. Through autograd (a bmm on many tiny matrices,
+    whose backward is slow on CPU, and a dozen small nodes) the loss took ~15 % of a CPU training
+    step; here J delta_a is one bmm and the backward two broadcast products (~20 % less)."""
+
+    @staticmethod
+    def forward(ctx, delta_a: torch.Tensor, jacobian: torch.Tensor, residual: torch.Tensor,
+                lambda_l1: float) -> tuple[torch.Tensor, torch.Tensor]:
+        err = torch.bmm(jacobian, delta_a.unsqueeze(-1)).squeeze(-1).sub_(residual)
+        fit = err.pow(2).mean()
+        ctx.save_for_backward(delta_a, jacobian, err)
+        ctx.lambda_l1 = lambda_l1
+        return fit + lambda_l1 * delta_a.abs().sum() / len(delta_a), fit
+
+    @staticmethod
+    def backward(ctx, g_total: torch.Tensor, g_fit: torch.Tensor):
+        delta_a, jacobian, err = ctx.saved_tensors
+        g_err = err * ((g_total + g_fit) * (2.0 / err.numel()))
+        need_delta, need_jac, need_res, _ = ctx.needs_input_grad
+        g_delta = g_jac = None
+        if need_delta:  # d|x|/dx = sign(x), 0 at 0 as autograd's
+            g_delta = (g_err.unsqueeze(-1) * jacobian).sum(1) \
+                + delta_a.sign() * (g_total * ctx.lambda_l1 / len(delta_a))
+        if need_jac:
+            g_jac = g_err.unsqueeze(-1) * delta_a.unsqueeze(1)
+        return g_delta, g_jac, -g_err if need_res else None, None
+
+
 def acn_loss(delta_a: torch.Tensor, jacobian: torch.Tensor, residual: torch.Tensor,
              lambda_l1: float) -> tuple[torch.Tensor, torch.Tensor]:
     """(total, residual term): mean_c (J delta_a - delta_s)^2 + lambda * mean_batch |delta_a|_1."""
-    predicted = torch.bmm(jacobian, delta_a.unsqueeze(-1)).squeeze(-1)
-    fit = (predicted - residual).pow(2).mean()
-    return fit + lambda_l1 * delta_a.abs().sum(dim=1).mean(), fit
+    return _ACNLoss.apply(delta_a, jacobian, residual, lambda_l1)
 
 
 def regression_loss(delta_a: torch.Tensor, label: torch.Tensor) -> torch.Tensor:

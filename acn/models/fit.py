@@ -85,7 +85,7 @@ class FitConfig:
     val_fraction: float = 0.2       # of episodes
     seed: int = 0
     device: str = "cpu"
-    precision: str = "auto"         # bf16 autocast where the CPU/GPU has native bf16, else fp32
+    precision: str = "auto"         # bf16 weights and matmuls in training where the CPU/GPU has bf16 natively
     train_threads: int | None = 1   # torch threads in training (None: torch's default; see corrector.torch_threads)
     jacobian_eps: float = 0.01      # action units (rad for joint targets), mujoco-jacobian's central differences
     # inverse: the Gauss-Newton labels (acn.models.labels.SolveConfig) and the loss
@@ -283,21 +283,19 @@ def labelled_split(rows: Labelled, norm: Normaliser, device: torch.device) -> Sp
                  _tensor(s.delta / norm.delta_scale, device), _tensor(norm.delta_scale, device))
 
 
-def _batch_loss(delta_out: torch.Tensor, j_pred: torch.Tensor | None, split: Split, idx, cfg: FitConfig,
+def _batch_loss(delta_out: torch.Tensor, j_pred: torch.Tensor | None, batch: Split, cfg: FitConfig,
                 jacobian: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-    """(loss, paper fit term) of one batch for the variant the split belongs to."""
-    sel = (lambda t: t) if idx is None else (lambda t: t[idx])  # noqa: E731
-    if split.label is None:
-        jac = jacobian if jacobian is not None else (j_pred if j_pred is not None else sel(split.jacobian))
-        return acn_loss(delta_out, jac, sel(split.residual), cfg.lambda_l1)
-    label = sel(split.label)
-    loss = regression_loss(delta_out, label)
-    jac = jacobian if jacobian is not None else sel(split.jacobian)
-    _, fit = acn_loss(delta_out * split.scale, jac, sel(split.residual), 0.0)
+    """(loss, paper fit term) on the rows of ``batch`` for the variant it belongs to."""
+    if batch.label is None:
+        jac = jacobian if jacobian is not None else (j_pred if j_pred is not None else batch.jacobian)
+        return acn_loss(delta_out, jac, batch.residual, cfg.lambda_l1)
+    loss = regression_loss(delta_out, batch.label)
+    jac = jacobian if jacobian is not None else batch.jacobian
+    _, fit = acn_loss(delta_out * batch.scale, jac, batch.residual, 0.0)
     if cfg.jacobian_weight:
         loss = loss + cfg.jacobian_weight * fit
     if cfg.label_state_weight:  # (delta_a - delta_a*) as the next state sees it, to first order
-        seen = torch.bmm(jac, ((delta_out - label) * split.scale).unsqueeze(-1)).squeeze(-1)
+        seen = torch.bmm(jac, ((delta_out - batch.label) * batch.scale).unsqueeze(-1)).squeeze(-1)
         loss = loss + cfg.label_state_weight * seen.pow(2).mean()
     return loss, fit
 
@@ -305,43 +303,85 @@ def _batch_loss(delta_out: torch.Tensor, j_pred: torch.Tensor | None, split: Spl
 def train(model: Corrector, tr: Split, cfg: FitConfig, on_epoch=None, epochs: int | None = None) -> list[dict]:
     """Adam on the variant's loss; batches are index slices of tensors held whole.
 
-    Speed (benchmarks/fit.py): fused Adam (one kernel for all parameters) and, where the
-    hardware has native bf16, bf16 autocast for the matmuls (weights and loss stay fp32).
+    Speed (benchmarks/fit.py): batches are gathered into preallocated buffers; the parameters
+    are views of one flat buffer (``_FlatParameters``), so fused Adam updates one tensor; where
+    the hardware has native bf16, weights and inputs are held in bf16 for the matmuls (no
+    per-step autocast casts of each weight and gradient) while Adam updates a float32 master
+    copy and the loss is float32; the loss's gradient is written out (``acn.models.acn``).
     """
     with torch_threads(cfg.train_threads if tr.x.device.type == "cpu" else None):
         cfg = cfg.resolved()
         return _train(model, tr, cfg, on_epoch, cfg.epochs if epochs is None else epochs)
 
 
+class _FlatParameters:
+    """Adam on one flat float32 master copy of the parameters (one optimiser tensor); the
+    network's parameters are views of one flat buffer in the training dtype (bf16: gradients and
+    weights cast once per step, as two whole buffers; float32: the master itself)."""
+
+    def __init__(self, params: list[torch.nn.Parameter], dtype: torch.dtype) -> None:
+        self.params = params
+        self.master = torch.cat([p.detach().reshape(-1) for p in params]).float()
+        self.master.grad = torch.empty_like(self.master)
+        self.work = self.master if dtype == torch.float32 else self.master.to(dtype)
+        for p, w in zip(params, self._views(self.work)):
+            p.data, p.grad = w, None
+
+    def _views(self, flat: torch.Tensor) -> list[torch.Tensor]:
+        return [v.view_as(p) for v, p in zip(flat.split([p.numel() for p in self.params]), self.params)]
+
+    def step(self, opt: torch.optim.Optimizer) -> None:
+        """Gather the gradients into the master's (one cast), Adam, weights back to the work buffer."""
+        torch.cat([p.grad.reshape(-1) for p in self.params], out=self.master.grad)
+        for p in self.params:
+            p.grad = None
+        opt.step()
+        if self.work is not self.master:
+            self.work.copy_(self.master)
+
+    def restore(self) -> None:
+        """Give each parameter its own float32 tensor again (the master's values)."""
+        for p, m in zip(self.params, self._views(self.master.detach())):
+            p.data, p.grad = m.clone(), None
+
+
 def _train(model: Corrector, tr: Split, cfg: FitConfig, on_epoch, epochs: int) -> list[dict]:
     net = model.net
     net.train()
-    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, fused=True)
-    device_type = tr.x.device.type
-    bf16 = cfg.use_bf16()
-    gen = torch.Generator(device="cpu").manual_seed(cfg.seed)
-    history, n, b = [], len(tr), cfg.batch_size
-    steps = epochs * ((n + b - 1) // b)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps) if cfg.lr_schedule == "cosine" else None
-    for epoch in range(epochs):
-        perm = torch.randperm(n, generator=gen).to(tr.x.device)
-        total, count = torch.zeros((), device=tr.x.device), 0
-        for i in range(0, n, b):
-            idx = perm[i:i + b]
-            with torch.autocast(device_type, dtype=torch.bfloat16, enabled=bf16):
-                delta_a, j_pred = net(tr.x[idx])
-            loss, _ = _batch_loss(delta_a.float(), None if j_pred is None else j_pred.float(), tr, idx, cfg)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            if sched is not None:
-                sched.step()
-            total += loss.detach() * len(idx)
-            count += len(idx)
-        history.append({"epoch": epoch + 1, "train_loss": float(total) / count})
-        if on_epoch:
-            on_epoch(history[-1])
-    net.eval()
+    dev = tr.x.device
+    dtype = torch.bfloat16 if cfg.use_bf16() else torch.float32
+    flat = _FlatParameters(list(net.parameters()), dtype)
+    try:
+        opt = torch.optim.Adam([flat.master], lr=cfg.lr, fused=True)
+        gen = torch.Generator(device="cpu").manual_seed(cfg.seed)
+        history, n, b = [], len(tr), cfg.batch_size
+        steps = epochs * ((n + b - 1) // b)
+        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps) if cfg.lr_schedule == "cosine" else None
+        whole = replace(tr, x=tr.x.to(dtype))  # cast once, not per batch
+        rows = {k: t for k in ("x", "residual", "jacobian", "label") if (t := getattr(whole, k)) is not None}
+        buffers = {k: t.new_empty((b, *t.shape[1:])) for k, t in rows.items()}
+        for epoch in range(epochs):
+            perm = torch.randperm(n, generator=gen).to(dev)
+            total, count = torch.zeros((), device=dev), 0
+            for i in range(0, n, b):
+                idx = perm[i:i + b]
+                m = len(idx)
+                batch = replace(whole, **{k: torch.index_select(t, 0, idx, out=buffers[k][:m])
+                                          for k, t in rows.items()})
+                delta_a, j_pred = net(batch.x)
+                loss, _ = _batch_loss(delta_a.float(), None if j_pred is None else j_pred.float(), batch, cfg)
+                loss.backward()
+                flat.step(opt)
+                if sched is not None:
+                    sched.step()
+                total.add_(loss.detach(), alpha=m)
+                count += m
+            history.append({"epoch": epoch + 1, "train_loss": float(total) / count})
+            if on_epoch:
+                on_epoch(history[-1])
+    finally:
+        flat.restore()
+        net.eval()
     return history
 
 
@@ -349,7 +389,7 @@ def _train(model: Corrector, tr: Split, cfg: FitConfig, on_epoch, epochs: int) -
 def objective(model: Corrector, split: Split, cfg: FitConfig, jacobian: torch.Tensor | None = None) -> dict:
     """The variant's loss on ``split`` and the paper's fit term (own J, or the given J)."""
     delta_out, j_pred = model.net(split.x)
-    total, fit = _batch_loss(delta_out, j_pred, split, None, cfg, jacobian)
+    total, fit = _batch_loss(delta_out, j_pred, split, cfg, jacobian)
     delta = delta_out if split.scale is None else delta_out * split.scale
     out = {"loss": float(total), "fit": float(fit), "fit_no_correction": float(split.residual.pow(2).mean()),
            "mean_abs_delta_a": float(delta.abs().mean())}
