@@ -31,6 +31,7 @@ SIGNIFICANCE_Z = 3.0
 MIN_IMPROVEMENT = 0.02       # of the error (MSE)
 LARGE_IMPROVEMENT = 0.25     # of the error (MSE): significant however unevenly spread
 BLOCK = 10                   # rows per block in the significance test
+LARGEST_FACTOR = 2.0         # a fit further from nominal than this x the largest realistic magnitude is implausible
 SMALLEST_SHARE = 0.75        # of the smallest realistic magnitude a named effect must reach
 STRUCTURED_SHARE = 0.15      # of the error that must be above the noise floor before an effect is missing
 PARSIMONY_Z = 2.0            # a richer candidate must beat a simpler one by this much to rank first,
@@ -82,14 +83,33 @@ def too_small(fit: EffectFit) -> bool:
     return bool(sizes) and not any(sizes)
 
 
+def too_large(fit: EffectFit) -> list[str]:
+    """Parameters further from nominal than LARGEST_FACTOR x the largest realistic magnitude."""
+    out = []
+    for p in fit.effect.parameters:
+        if p.realistic is None:
+            continue
+        v = np.atleast_1d(np.asarray(fit.values[p.name], float))
+        nominal = np.atleast_1d(np.asarray(fit.nominal[p.name], float))
+        largest = p.realistic[1] if p.signed else max(abs(x - p.nominal) for x in p.realistic)
+        if np.abs(v - nominal).max() > LARGEST_FACTOR * largest:
+            out.append(p.name)
+    return out
+
+
 def implausible(fit: EffectFit) -> str:
     """Why a fitted effect cannot be the explanation ("" if it can): a value pushed against a
-    bound stands in for something else; one below 3/4 of the smallest magnitude real robots show
-    is fitting noise or another effect's leftovers (sensor noise in joint readings biases the
-    contact forces a re-simulation starts with, and encoder offsets of a few mrad fit that)."""
+    bound, or more than twice the largest magnitude real robots show, stands in for something
+    else (joint springs fit as damping 2.5 N m s/rad or a derivative gain x 2.8); one below 3/4
+    of the smallest realistic magnitude is fitting noise or another effect's leftovers (sensor
+    noise in joint readings biases the contact forces a re-simulation starts with, and encoder
+    offsets of a few mrad fit that)."""
     stuck = at_bound(fit)
     if stuck:
         return f"needs {', '.join(stuck)} at the bound of its range"
+    large = too_large(fit)
+    if large:
+        return f"needs {', '.join(large)} beyond {LARGEST_FACTOR:g}x the largest realistic magnitude"
     if too_small(fit):
         return "fits a value below 3/4 of the smallest realistic magnitude"
     return ""
