@@ -70,31 +70,29 @@ def at_bound(fit: EffectFit) -> list[str]:
     return out
 
 
-def too_small(fit: EffectFit) -> bool:
-    """Every parameter closer to its nominal value than 3/4 of the smallest realistic magnitude."""
-    sizes = []
-    for p in fit.effect.parameters:
-        if p.realistic is None:
-            continue
-        v = np.atleast_1d(np.asarray(fit.values[p.name], float))
-        nominal = np.atleast_1d(np.asarray(fit.nominal[p.name], float))
-        smallest = p.realistic[0] if p.signed else min(abs(x - p.nominal) for x in p.realistic)
-        sizes.append(np.abs(v - nominal).max() >= SMALLEST_SHARE * smallest)
-    return bool(sizes) and not any(sizes)
-
-
-def too_large(fit: EffectFit) -> list[str]:
-    """Parameters further from nominal than LARGEST_FACTOR x the largest realistic magnitude."""
+def _magnitudes(fit: EffectFit) -> list[tuple[str, float, float, float]]:
+    """(name, largest |fitted - nominal|, smallest and largest realistic magnitude) per parameter
+    with a realistic range."""
     out = []
     for p in fit.effect.parameters:
         if p.realistic is None:
             continue
         v = np.atleast_1d(np.asarray(fit.values[p.name], float))
         nominal = np.atleast_1d(np.asarray(fit.nominal[p.name], float))
-        largest = p.realistic[1] if p.signed else max(abs(x - p.nominal) for x in p.realistic)
-        if np.abs(v - nominal).max() > LARGEST_FACTOR * largest:
-            out.append(p.name)
+        sizes = p.realistic if p.signed else tuple(sorted(abs(x - p.nominal) for x in p.realistic))
+        out.append((p.name, float(np.abs(v - nominal).max()), sizes[0], sizes[1]))
     return out
+
+
+def too_small(fit: EffectFit) -> bool:
+    """Every parameter closer to its nominal value than 3/4 of the smallest realistic magnitude."""
+    sizes = _magnitudes(fit)
+    return bool(sizes) and all(dev < SMALLEST_SHARE * smallest for _, dev, smallest, _ in sizes)
+
+
+def too_large(fit: EffectFit) -> list[str]:
+    """Parameters further from nominal than LARGEST_FACTOR x the largest realistic magnitude."""
+    return [name for name, dev, _, largest in _magnitudes(fit) if dev > LARGEST_FACTOR * largest]
 
 
 def implausible(fit: EffectFit) -> str:
