@@ -21,7 +21,6 @@ from hypothesis import strategies as st
 from acn.datasets.measurements import load_measurements
 from acn.datasets.reader import load_frames, load_paired
 from acn.errors import UserError
-from acn.models.acn import ActionCorrectionNetwork  # noqa: F401 - the corrector's network is importable
 from acn.models.corrector import CONFIG, WEIGHTS, Corrector, default_config
 from acn.toolkit.effects import Model
 

@@ -18,7 +18,6 @@ Each segment of n rows gives n - 1 transitions and becomes one dataset episode.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,6 +25,7 @@ import numpy as np
 
 from acn.datasets import schema
 from acn.errors import UserError
+from acn.jsonfile import read_json
 from acn.toolkit.collector import FALL_RULE, Episode, Trace, fallen
 from acn.toolkit.robot import ModelParams
 from acn.toolkit.state import ACTION_NAMES, GROUPS, STATE_NAMES
@@ -91,12 +91,7 @@ def read_table(path: Path) -> dict[str, np.ndarray]:
 def read_map(path: Path | None) -> dict:
     if path is None:
         return {}
-    if not path.is_file():
-        raise UserError(f"map file {path} does not exist")
-    try:
-        mapping = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise UserError(f"{path} is not valid JSON: {e}") from None
+    mapping = read_json(path, f"map file {path} does not exist")
     if not isinstance(mapping, dict):
         raise UserError(f"{path}: a map is a JSON object  name -> column or {{column, scale, offset}}")
     return mapping

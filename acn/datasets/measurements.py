@@ -21,7 +21,7 @@ from acn.datasets import schema
 from acn.datasets.reader import read_columns, read_info
 from acn.errors import UserError
 from acn.toolkit.backends import SimConfig
-from acn.toolkit.state import ACTION_DIM, GROUPS, SLICES, STATE_DIM, STATE_NAMES
+from acn.toolkit.state import ACTION_DIM, GROUPS, SLICES, STATE_NAMES
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 

@@ -10,7 +10,6 @@ files), and skips rows with non-finite values (counted in ``skipped_nonfinite``)
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 from dataclasses import dataclass, field
@@ -20,6 +19,7 @@ import numpy as np
 
 from acn.datasets import schema
 from acn.errors import UserError
+from acn.jsonfile import read_json
 from acn.toolkit.state import ACTION_DIM, STATE_DIM, WRAPPED_INDEX, wrap_angle
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
@@ -30,13 +30,7 @@ _MUST_MATCH = ("state_names", "action_names", "physics_dt", "substeps", "action_
 
 def read_info(path: str | Path) -> dict:
     """``meta/info.json`` of a dataset, with a clear error if it is not an acn dataset."""
-    p = Path(path) / "meta" / "info.json"
-    if not p.is_file():
-        raise UserError(f"{path} is not a LeRobot dataset (no meta/info.json)")
-    try:
-        info = json.loads(p.read_text())
-    except json.JSONDecodeError as e:
-        raise UserError(f"{p} is not valid JSON: {e}") from None
+    info = read_json(Path(path) / "meta" / "info.json", f"{path} is not a LeRobot dataset (no meta/info.json)")
     if not isinstance(info, dict) or schema.ACN_KEY not in info:
         raise UserError(f"{path} was not written by acn-collect (no '{schema.ACN_KEY}' block in meta/info.json)")
     problem = schema.acn_block_problem(info[schema.ACN_KEY])

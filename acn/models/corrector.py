@@ -19,6 +19,7 @@ from safetensors.torch import load_file, save_file
 from torch import nn
 
 from acn.errors import UserError
+from acn.jsonfile import read_json
 from acn.models.acn import LEARNED_JACOBIAN, OUTPUT_CHANNELS, ActionCorrectionNetwork, input_channels
 from acn.toolkit.state import ACTION_DIM, STATE_DIM, STATE_NAMES
 
@@ -106,12 +107,10 @@ class Corrector(nn.Module):
     def load(cls, directory: str | Path) -> "Corrector":
         """Load a frozen corrector; a clear ``UserError`` for a missing, corrupt or foreign file."""
         d = Path(directory)
-        if not (d / CONFIG).is_file() or not (d / WEIGHTS).is_file():
-            raise UserError(f"{d} is not a corrector directory (needs {CONFIG} and {WEIGHTS})")
-        try:
-            config = json.loads((d / CONFIG).read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise UserError(f"{d / CONFIG} is not valid JSON: {e}") from None
+        missing = f"{d} is not a corrector directory (needs {CONFIG} and {WEIGHTS})"
+        if not (d / WEIGHTS).is_file():
+            raise UserError(missing)
+        config = read_json(d / CONFIG, missing)
         if not isinstance(config, dict) or config.get("format") != FORMAT:
             raise UserError(f"{d / CONFIG} is not an acn corrector config (format {FORMAT!r} expected)")
         try:

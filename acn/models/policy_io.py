@@ -27,6 +27,7 @@ from safetensors.torch import load_file, save_file
 from torch import nn
 
 from acn.errors import UserError
+from acn.jsonfile import read_json
 from acn.toolkit.backends import SimConfig
 from acn.toolkit.collector import InitNoise
 from acn.toolkit.envs import EnvConfig, Residual
@@ -122,12 +123,10 @@ class WalkingPolicy(nn.Module):
     def load(cls, directory: str | Path) -> "WalkingPolicy":
         """Load a policy; a one-line ``UserError`` for a missing, corrupt or foreign directory."""
         d = Path(directory)
-        if not (d / CONFIG).is_file() or not (d / WEIGHTS).is_file():
-            raise UserError(f"{d} is not a policy directory (needs {CONFIG} and {WEIGHTS})")
-        try:
-            config = json.loads((d / CONFIG).read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise UserError(f"{d / CONFIG} is not valid JSON: {e}") from None
+        missing = f"{d} is not a policy directory (needs {CONFIG} and {WEIGHTS})"
+        if not (d / WEIGHTS).is_file():
+            raise UserError(missing)
+        config = read_json(d / CONFIG, missing)
         if not isinstance(config, dict) or config.get("format") != FORMAT:
             raise UserError(f"{d / CONFIG} is not an acn policy config (format {FORMAT!r} expected)")
         check_schema(config, str(d))

@@ -36,7 +36,6 @@ return is a sum of negative rewards), so a PPO that maximises them learns not to
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import math
@@ -60,7 +59,7 @@ from torch import nn
 from acn.atomic import move_into_place, temporary_beside
 from acn.errors import UserError
 from acn.models.acn import INPUT_CHANNELS
-from acn.models.corrector import Corrector
+from acn.models.corrector import Corrector, torch_threads
 from acn.models.evaluate import HELD_OUT_SEED_OFFSET, distribution_stats
 from acn.models.fit import FitConfig
 from acn.models.policy_io import WalkingPolicy, policy_config
@@ -311,18 +310,6 @@ def load_corrector(directory: str | Path, env: EnvConfig) -> Corrector:
 
 # ----- evaluation: PyBullet, MuJoCo, MuJoCo + F -------------------------------------------------
 RUNS = ("pybullet", "mujoco", "mujoco_corrected")
-
-
-@contextlib.contextmanager
-def torch_threads(n: int):
-    """Run with ``n`` torch intra-op threads, then restore. Per-step inference on one row gains
-    nothing from threads and, on a busy CPU, loses a lot (measured: 2 threads 6x slower than 1)."""
-    old = torch.get_num_threads()
-    torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(old)
 
 
 def _episode(env: A1Env, policy: WalkingPolicy, s0: np.ndarray) -> tuple[np.ndarray, str, float]:

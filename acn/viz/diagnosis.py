@@ -26,7 +26,6 @@ measured transition and stage, each row with its stage's model).
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,6 +34,7 @@ import numpy as np
 from acn.datasets.measurements import Measurements, load_measurements
 from acn.datasets.reader import RecordedFrames, state_difference
 from acn.errors import UserError
+from acn.jsonfile import read_json
 from acn.toolkit.backends import BACKENDS
 from acn.toolkit.effects import Model
 from acn.toolkit.resim import Resimulator
@@ -102,12 +102,7 @@ def effect_stages(model: Model) -> list[Stage]:
 def load_diagnosis(path: str | Path) -> dict:
     """An ``acn-diagnose --json`` result, checked for what the view reads; else a one-line error."""
     p = Path(path)
-    if not p.is_file():
-        raise UserError(f"diagnosis file {p} does not exist")
-    try:
-        d = json.loads(p.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise UserError(f"{p} is not valid JSON: {e}") from None
+    d = read_json(p, f"diagnosis file {p} does not exist")
     what = (f"{p} is not an acn-diagnose --json result (it needs 'verdict' ({', '.join(VERDICTS)}), 'reason', "
             "'ranking' with 'name' and 'explained', and 'where' with 'summary')")
     if not isinstance(d, dict) or d.get("verdict") not in VERDICTS or not isinstance(d.get("reason"), str):

@@ -14,7 +14,7 @@ import numpy as np
 
 from acn.models.diagnose.compare import Comparison
 from acn.models.diagnose.problem import Problem
-from acn.toolkit.state import FOOT_NAMES, GROUPS, JOINT_NAMES, SLICES
+from acn.toolkit.state import FOOT_NAMES, JOINT_NAMES, SLICES
 
 TREND = 0.3  # rank correlation from which a trend is worth saying
 

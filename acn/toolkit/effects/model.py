@@ -18,6 +18,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from acn.errors import UserError
+from acn.jsonfile import read_json
 from acn.toolkit.backends import BACKENDS, SimConfig
 from acn.toolkit.effects.catalogue import get_effect
 from acn.toolkit.effects.effect import AppliedEffect, Effect, Values
@@ -87,13 +88,7 @@ class Model:
     @classmethod
     def load(cls, path: str | Path) -> "Model":
         p = Path(path)
-        if not p.is_file():
-            raise UserError(f"model file {p} does not exist")
-        try:
-            d = json.loads(p.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise UserError(f"{p} is not valid JSON: {e}") from None
-        return cls.from_json(d, where=str(p))
+        return cls.from_json(read_json(p, f"model file {p} does not exist"), where=str(p))
 
     @classmethod
     def parse(cls, spec: str | Path) -> "Model":
