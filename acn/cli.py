@@ -518,6 +518,13 @@ def diagnose_parser() -> argparse.ArgumentParser:
     p.add_argument("--explain-corrector", type=Path, default=None, metavar="DIR",
                    help="explain a corrector from acn-fit: which effects its corrections look like")
     p.add_argument("--list-effects", action="store_true", help="print the catalogue of effects and exit")
+    p.add_argument("--closed-loop", type=_nonneg_int, default=0, metavar="N",
+                   help="then re-run the measured robot (an acn-collect dataset) from N held-out initial states beside "
+                   "the model as given, with --corrector and with the added effects: divergence, eps_transfer, falls")
+    p.add_argument("--closed-loop-seconds", type=_positive_float, default=5.0, help="episode length, s")
+    p.add_argument("--corrector", type=Path, default=None, metavar="DIR",
+                   help="with --closed-loop: also run the model with this corrector (acn-fit output)")
+    p.add_argument("--no-oracles", action="store_true", help="with --closed-loop: skip the oracle bounds")
     p.add_argument("--horizons", default=",".join(map(str, d.horizons)), help="open-loop horizons, control steps")
     p.add_argument("--effects", default=None, help="comma-separated candidates (default: the whole catalogue)")
     p.add_argument("--seed", type=_nonneg_int, default=d.seed)
@@ -550,9 +557,19 @@ def diagnose_main(argv: list[str] | None = None) -> int:
             get_effect(name)
         if not args.measured.is_dir():
             raise UserError(f"measurement dataset {args.measured} does not exist")
+        if args.corrector is not None and not args.closed_loop:
+            raise UserError("--corrector is run in closed loop: give --closed-loop N as well")
+        if args.closed_loop and args.explain_corrector is not None:
+            raise UserError("--closed-loop and --explain-corrector are separate questions: ask one at a time")
+        if args.corrector is not None and not args.corrector.is_dir():
+            raise UserError(f"corrector directory {args.corrector} does not exist")
         model = Model.parse(args.model)
         cfg = DiagnoseConfig(horizons=horizons, candidates=candidates, seed=args.seed)
         data = load_measurements(args.measured, side=args.side)
+        if args.closed_loop:  # refuse a log that cannot be re-run before the diagnosis, not after
+            from acn.models.diagnose.transfer import robot_config
+
+            robot_config(args.measured, data, args.side, model, args.closed_loop, args.closed_loop_seconds)
         from tqdm import tqdm
 
         with _ray_executor(args, "acn-diagnose"), tqdm(total=100, file=sys.stderr, bar_format="{l_bar}{bar}| {elapsed} {postfix}",
@@ -566,6 +583,13 @@ def diagnose_main(argv: list[str] | None = None) -> int:
                 result = explain_corrector(data, model, args.explain_corrector, cfg, progress=say)
             else:
                 result = diagnose(data, model, cfg, add=args.add, automatic=args.auto, progress=say)
+            if args.closed_loop:
+                from acn.models.diagnose.transfer import closed_loop_models
+
+                say("closed loop")
+                result.closed_loop = closed_loop_models(args.measured, data, args.side, model, result.final.model,
+                                                        args.corrector, args.closed_loop, args.closed_loop_seconds,
+                                                        oracles=not args.no_oracles)
             say("done", 1.0)
         print(terminal(result))
         if args.json:

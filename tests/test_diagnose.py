@@ -169,11 +169,21 @@ def test_cli_writes_json_report_and_model(tmp_path, capsys):
            data_dir)
     args = [str(data_dir), "--model", "mujoco", "--add", "motor_strength", "--json", str(tmp_path / "d.json"),
             "--report", str(tmp_path / "r.html"), "--save-model", str(tmp_path / "model.json"),
-            "--horizons", "1,5", "--effects", "motor_strength,joint_damping,actuator_latency"]
+            "--horizons", "1,5", "--effects", "motor_strength,joint_damping,actuator_latency",
+            "--closed-loop", "1", "--closed-loop-seconds", "1"]
     assert diagnose_main(args) == 0
     out = capsys.readouterr().out
     assert "verdict: effect" in out and "motor_strength" in out
     result = json.loads((tmp_path / "d.json").read_text())
+    # Closed loop: the robot (re-run with its hidden strength from the answer file) beside the
+    # model as given and the model with the fitted effect: the physics closes the gap.
+    loop = result["closed_loop"]
+    assert list(loop["runs"]) == ["uncorrected", "with effects"]  # no oracles for a robot with hidden effects
+    unc, fixed = loop["runs"]["uncorrected"], loop["runs"]["with effects"]
+    assert fixed["divergence"] < 0.2 * unc["divergence"], (fixed["divergence"], unc["divergence"])
+    assert abs(fixed["eps_transfer"]) < abs(unc["eps_transfer"]), (fixed["eps_transfer"], unc["eps_transfer"])
+    assert loop["robot"]["hidden_effects"][0]["name"] == "motor_strength"
+    assert "closed loop, model vs the robot" in out and "with effects" in out
     assert result["verdict"] == "effect"
     assert set(result["error"]) == {"1", "5"} and "joint_vel" in result["error"]["1"]
     assert [r["name"] for r in result["ranking"]][0] == "motor_strength"
@@ -184,6 +194,7 @@ def test_cli_writes_json_report_and_model(tmp_path, capsys):
     assert "summary" in result["where"] and "by_joint" in result["where"]
     html = (tmp_path / "r.html").read_text()
     assert "plotly" in html.lower() and "motor_strength" in html and "<script" in html
+    assert "Closed loop: the model beside the robot" in html
     model = Model.load(tmp_path / "model.json")  # composes: the saved model is a starting point
     assert model.effects[0].name == "motor_strength"
     assert diagnose_main([str(data_dir), "--model", str(tmp_path / "model.json"), "--horizons", "1",
@@ -197,6 +208,7 @@ def test_cli_writes_json_report_and_model(tmp_path, capsys):
     (["--effects", "joint_damping,gravity"], "unknown effect"),
     (["--model", "gazebo"], "neither a backend"),
     (["--horizons", "1,x"], "--horizons"),
+    (["--corrector", "c"], "give --closed-loop"),
 ])
 def test_cli_bad_input_is_one_line(tmp_path, capsys, args, message):
     from acn.cli import diagnose_main
@@ -240,6 +252,10 @@ def test_measurements_at_another_rate_or_without_joints_are_one_line_errors(tmp_
     # A dataset whose joint channels are all missing is refused by the diagnosis.
     assert import_main([str(tmp_path / "log.csv"), "--out", str(tmp_path / "ok"), "--control-hz", "50", "--kp", "60",
                         "--kd", "1.5", "--torque-limit", "33.5"]) == 0
+    capsys.readouterr()
+    assert diagnose_main([str(tmp_path / "ok"), "--closed-loop", "1", "--horizons", "1", "--effects", "armature"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not an acn-collect dataset" in err[0], err
     info = json.loads((tmp_path / "ok" / "meta" / "info.json").read_text())
     info["acn"]["missing_channels"] = [f"{j}_pos" for j in ("FR_hip", "FR_thigh", "FR_calf", "FL_hip", "FL_thigh",
                                                             "FL_calf", "RR_hip", "RR_thigh", "RR_calf", "RL_hip",

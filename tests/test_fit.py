@@ -287,3 +287,27 @@ def test_no_filter_writes_standard_json(paired, tmp_path):
     for name in ("config.json", "metrics.json"):
         json.loads((path / name).read_text(), parse_constant=lambda c: pytest.fail(f"{name} has {c}"))
     assert metrics["rows"]["filter_threshold"] is None
+
+
+def test_closed_loop_of_a_model_runs_beside_the_corrector_and_the_oracles(fitted, paired):
+    """acn-diagnose --closed-loop: the network's and the physics' answer on the same held-out
+    episodes as acn-fit's own evaluation (same initial states: the uncorrected run is identical)."""
+    from acn.datasets.measurements import load_measurements
+    from acn.models.diagnose.transfer import closed_loop_models
+    from acn.toolkit.effects import AppliedEffect, Model, get_effect
+
+    model_dir, metrics = fitted
+    data = load_measurements(paired, side="source")
+    before = Model("mujoco")
+    after = Model("mujoco", [AppliedEffect(get_effect("joint_damping"), {"value": np.full(12, 0.3)})])
+    out = closed_loop_models(paired, data, "source", before, after, model_dir, episodes=1,
+                             seconds=FAST["eval_seconds"])
+    assert list(out["runs"]) == ["uncorrected", "corrected", "with effects", "same_state_oracle", "tracking_oracle"]
+    fit_loop = metrics["closed_loop"]["runs"]
+    assert out["runs"]["uncorrected"]["eps_transfer"] == pytest.approx(fit_loop["uncorrected"]["eps_transfer"])
+    assert out["runs"]["corrected"]["eps_transfer"] == pytest.approx(fit_loop["corrected"]["eps_transfer"], rel=1e-4)
+    # Damping changes the model's motion; the tracking oracle follows the robot closest.
+    runs = out["runs"]
+    assert runs["with effects"]["divergence"] != pytest.approx(runs["uncorrected"]["divergence"])
+    assert runs["tracking_oracle"]["divergence"] < runs["uncorrected"]["divergence"]
+    assert out["models"]["with effects"].startswith("mujoco + joint_damping")

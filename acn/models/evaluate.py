@@ -76,6 +76,12 @@ def distribution_stats(x: np.ndarray, bins: int = 50) -> dict[str, float]:
             "expectation": float((counts * centres).sum() / counts.sum())}
 
 
+def held_out(cfg: CollectConfig, episodes: int, seconds: float) -> CollectConfig:
+    """``cfg`` moved to evaluation initial states (never training ones), without a corrector."""
+    return CollectConfig(**{**cfg.__dict__, "seed": cfg.seed + HELD_OUT_SEED_OFFSET, "seconds": seconds,
+                            "episodes": episodes, "corrector": None})
+
+
 def run_episodes(cfg: CollectConfig, corrector, episodes: int, bind: Callable | None = None) -> list[Episode]:
     rollout = PairedRollout(cfg, corrector=corrector)
     try:
@@ -91,8 +97,8 @@ def run_oracles(cfg: CollectConfig, episodes: int, channel_scale: np.ndarray,
                 solver: SolveConfig | None = None) -> dict[str, list[Episode]]:
     """The two oracle runs of ``closed_loop`` (``cfg`` already held out)."""
     weights = 1.0 / np.asarray(channel_scale, float)
-    same = SameStateOracle(cfg.source, cfg.source_sim, cfg.target, cfg.sim, weights, solver)
-    track = TrackingOracle(cfg.target, cfg.sim, weights, solver=solver)
+    same = SameStateOracle(cfg.source, cfg.source_sim, cfg.target, cfg.target_sim, weights, solver)
+    track = TrackingOracle(cfg.target, cfg.target_sim, weights, solver=solver)
     try:
         def bind(rollout: PairedRollout) -> None:
             track.goal = rollout.source.get_state  # the source has stepped when the target is corrected
@@ -114,8 +120,7 @@ def closed_loop(cfg: CollectConfig, corrector, episodes: int, seconds: float, ou
     """
     import time
 
-    cfg = CollectConfig(**{**cfg.__dict__, "seed": cfg.seed + HELD_OUT_SEED_OFFSET, "seconds": seconds,
-                           "episodes": episodes, "corrector": None})
+    cfg = held_out(cfg, episodes, seconds)
     runs: dict[str, list[Episode]] = {}
     seconds_per_run: dict[str, float] = {}
     t = time.perf_counter()

@@ -65,6 +65,9 @@ class CollectConfig:
     # Physical effects applied to the SOURCE (the measured robot) and never written into the
     # dataset: measurements with a hidden effect, for testing a diagnosis (``acn.toolkit.hidden``).
     hidden_effects: list = field(default_factory=list)  # [AppliedEffect]
+    # Physical effects written into the TARGET: a model under test (``acn-diagnose --closed-loop``:
+    # the model with the effects a diagnosis added, run beside the measured robot).
+    target_effects: list = field(default_factory=list)  # [AppliedEffect]
 
     @property
     def paired(self) -> bool:
@@ -78,6 +81,15 @@ class CollectConfig:
         from acn.toolkit.effects import Model
 
         return Model(self.source, list(self.hidden_effects)).sim_config(self.sim)
+
+    @property
+    def target_sim(self) -> SimConfig:
+        """The target simulator's config: ``sim`` with the target effects written in."""
+        if not self.target_effects:
+            return self.sim
+        from acn.toolkit.effects import Model
+
+        return Model(self.target, list(self.target_effects)).sim_config(self.sim)
 
     @property
     def steps_per_episode(self) -> int:
@@ -162,7 +174,7 @@ class PairedRollout:
         config.validate(builtin_policy=policy is None)
         self.config = config
         self.source = make_backend(config.source, config.source_sim)
-        self.target = make_backend(config.target, config.sim) if config.target else None
+        self.target = make_backend(config.target, config.target_sim) if config.target else None
         self.policy = make_policy(config.policy) if policy is None else policy
         self.corrector = corrector
         if corrector is None and config.corrector:

@@ -51,6 +51,7 @@ class Diagnosis:
     verdict: str
     reason: str
     seconds: dict = field(default_factory=dict)
+    closed_loop: dict | None = None  # robot vs model in closed loop (``transfer.closed_loop_models``)
 
     @property
     def floor_mse(self) -> float:

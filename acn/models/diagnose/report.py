@@ -13,7 +13,12 @@ JSON keys (the machine-readable contract):
   ``score``;
 - ``added`` (with ``--add`` / ``--auto``): in order, ``name``, ``params``, ``error_before`` and
   ``error_after`` (horizon -> group), ``headline_before``, ``headline_after``, ``explained``;
-- ``model`` and ``final_model``: the model files before and after.
+- ``model`` and ``final_model``: the model files before and after;
+- ``closed_loop`` (with ``--closed-loop``, else null): the robot re-run beside the model from
+  held-out initial states (``transfer``): ``runs`` by name (``uncorrected`` = the model as
+  given, ``corrected`` = with ``--corrector``, ``with effects`` = the final model, the
+  oracles), each with ``divergence``, ``divergence_by_group``, ``divergence_curve``,
+  ``eps_transfer``, ``target_falls``; ``models`` (what each run ran), ``robot``.
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ from acn.models.diagnose.compare import Comparison, group_errors
 from acn.models.diagnose.pipeline import Diagnosis
 from acn.models.diagnose.rank import implausible
 from acn.models.diagnose.rank import Candidate
+from acn.models.diagnose.transfer import table as closed_loop_table
 
 HEADLINE = ("one-step teacher-forced prediction error on held-out rows: RMS over every compared channel of "
             "(measured - predicted) / spread of the measured one-step change (1 = as wrong as predicting no motion)")
@@ -82,6 +88,7 @@ def to_json(d: Diagnosis) -> dict:
         "added": [_added(a, d.floor_mse) for a in d.added],
         "model": d.before.model.to_json(), "final_model": d.final.model.to_json(),
         "seconds": d.seconds,
+        "closed_loop": d.closed_loop,
     }
 
 
@@ -139,6 +146,8 @@ def terminal(d: Diagnosis) -> str:
         out += ["", f"added {a.name} ({a.fit.granularity}): {a.fit.effect.to_json(a.fit.values)}",
                 f"headline {a.before.headline:.4f} -> {a.after.headline:.4f}", error_table(a.before, a.after)]
     out += ["", f"verdict: {d.verdict} ({d.reason})"]
+    if d.closed_loop:
+        out += ["", closed_loop_table(d.closed_loop)]
     return "\n".join(out)
 
 
@@ -187,7 +196,22 @@ def write_html(d: Diagnosis, path: str | Path) -> Path:
         fig.add_hline(y=float(np.sqrt(d.floor_mse)), line_dash="dot", annotation_text="noise floor (one step)")
         fig.update_layout(title="The error falling as effects are added", yaxis_title="normalised RMS (all channels)")
         figs.append(fig)
+    loop = d.closed_loop
+    if loop:
+        fig = go.Figure([go.Scatter(y=r["divergence_curve"], x=np.arange(len(r["divergence_curve"])) * d.problem.control.control_dt,
+                                    mode="lines", name=name) for name, r in loop["runs"].items()])
+        fig.update_layout(title="Closed loop: divergence of each model from the robot (mean over held-out episodes)",
+                          xaxis_title="time, s", yaxis_title="normalised L2 over the 33 output channels")
+        figs.append(fig)
     parts = [pio.to_html(f, full_html=False, include_plotlyjs=(i == 0)) for i, f in enumerate(figs)]
+    loop_rows = "".join(
+        f"<tr><td>{html.escape(name)}</td><td>{r['divergence']:.3g}</td><td>{r['eps_transfer']:.1f}</td>"
+        f"<td>{r['target_falls']}/{len(r['ends'])}</td><td>{html.escape(loop['models'].get(name, ''))}</td></tr>"
+        for name, r in loop["runs"].items()) if loop else ""
+    loop_html = (f"<h2>Closed loop: the model beside the robot</h2><p>{len(loop['horizon_steps'])} held-out episode(s); "
+                 f"the robot's return {loop['return_source']:.1f}; eps_transfer = mean (R_model - R_robot), the paper's "
+                 "reward.</p><table><tr><th>run</th><th>divergence</th><th>eps_transfer</th><th>falls</th><th>model</th>"
+                 f"</tr>{loop_rows}</table>") if loop else ""
     ranking = "".join(
         f"<tr><td>{c.name}</td><td>{c.fit.granularity}</td><td>{c.judgement.explained(d.floor_mse):.0%}</td>"
         f"<td>{c.judgement.removed:+.1%}</td><td>{c.judgement.z:.1f}</td>"
@@ -205,6 +229,7 @@ td,th{{border:1px solid #ccc;padding:4px 8px}}</style></head><body>
 <h2>Candidate effects</h2><table><tr><th>effect</th><th>fitted as</th><th>explained</th><th>error removed</th><th>z</th>
 <th>parameters</th></tr>{ranking}</table>
 {'<h2>Added</h2><ul>' + added + '</ul>' if added else ''}
+{loop_html}
 <h2>Plots</h2>{''.join(parts)}</body></html>"""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
