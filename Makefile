@@ -29,11 +29,17 @@ demo: $(STAMP)
 	@echo "correctors: $(OUT)/acn_inverse (default), $(OUT)/acn_paper, $(OUT)/acn_mujoco_jacobian (acn.models.Corrector.load(DIR)); metrics.json inside"
 	$(BIN)/acn-view $(OUT)/trot_pb_mj --corrector $(OUT)/acn_inverse --save $(OUT)/trot_pb_mj.rrd
 	@echo "paired view (source, target, corrected target): rerun $(OUT)/trot_pb_mj.rrd"
+	# The same gap answered with physics: which catalogue effects explain PyBullet -> MuJoCo, and a
+	# MuJoCo model with them in closed loop beside the corrector and the oracles (same held-out starts).
+	$(BIN)/acn-diagnose $(OUT)/trot_pb_mj --side source --model mujoco --auto --closed-loop 4 \
+		--corrector $(OUT)/acn_inverse --json $(OUT)/trot_pb_mj.diagnosis.json \
+		--report $(OUT)/trot_pb_mj.report.html --save-model $(OUT)/trot_pb_mj.model.json
+	@echo "physics vs network on the trot gap: $(OUT)/trot_pb_mj.report.html, $(OUT)/trot_pb_mj.diagnosis.json (closed_loop)"
 	# Measurements with two hidden effects (the answer goes to $(OUT)/hidden.answer.json), then the diagnosis:
 	# compare, where, rank the catalogue, add effects while the error falls, report.
 	$(BIN)/acn-collect --source mujoco --policy excite --episodes 6 --seconds 8 --seed 3 --workers 2 \
 		--hidden-effect actuator_latency --hidden-effect joint_damping --out $(OUT)/hidden --overwrite
-	$(BIN)/acn-diagnose $(OUT)/hidden --model mujoco --auto --json $(OUT)/hidden.diagnosis.json \
+	$(BIN)/acn-diagnose $(OUT)/hidden --model mujoco --auto --closed-loop 4 --json $(OUT)/hidden.diagnosis.json \
 		--report $(OUT)/hidden.report.html --save-model $(OUT)/hidden.model.json
 	@echo "diagnosis: $(OUT)/hidden.report.html (HTML), $(OUT)/hidden.diagnosis.json, fitted model $(OUT)/hidden.model.json"
 	@echo "the hidden answer: $(OUT)/hidden.answer.json"

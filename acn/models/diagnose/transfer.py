@@ -109,6 +109,8 @@ def closed_loop_models(dataset: str | Path, data: Measurements, side: str, befor
         names[WITH_EFFECTS] = after.describe()
     if oracles and before.backend == "mujoco" and not before.corrector and not cfg.hidden_effects:
         runs.update(run_oracles(cfg, episodes, spread))
+        names["same_state_oracle"] = f"{before.describe()} + the best per-step correction F(s, a) (bound)"
+        names["tracking_oracle"] = f"{before.describe()} + corrections that see the robot's next state"
     out = summarise(runs, list(OUTPUT_CHANNELS), spread)
     out["runs"] = {k: out["runs"][k] for k in ORDER if k in out["runs"]}
     out["models"] = names
