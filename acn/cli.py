@@ -193,8 +193,10 @@ def collect_main(argv: list[str] | None = None) -> int:
             print(f"episode {sum(counts.values())}/{cfg.episodes}: {len(ep)} steps, {ep.end}", file=sys.stderr)
 
         try:
+            from acn.models.corrector import Corrector  # the CLI loads; the collector applies
+
             path = record(cfg, args.out, workers=args.workers, overwrite=args.overwrite, on_episode=progress,
-                          ray=ray, shards=args.shards)
+                          ray=ray, shards=args.shards, load_corrector=Corrector.load)
         except Interrupted as e:
             where = f"kept {e.episodes} finished episode(s) in {e.path}" if e.path else "nothing was written"
             print(f"acn-collect: interrupted; {where}", file=sys.stderr)

@@ -181,7 +181,10 @@ def test_collect_with_corrector_changes_only_the_targets_actions(fitted, tmp_pat
     cfg = CollectConfig(target="mujoco", policy="trot", episodes=1, seconds=0.5, seed=9)
     plain = record(cfg, tmp_path / "plain")
     cfg.corrector = str(fitted[0])
-    corrected = record(cfg, tmp_path / "corrected")
+    with pytest.raises(ValueError, match="load_corrector"):  # the toolkit applies a corrector, never loads one
+        record(cfg, tmp_path / "unloaded")
+    assert not (tmp_path / "unloaded").exists()
+    corrected = record(cfg, tmp_path / "corrected", load_corrector=Corrector.load)
     p, c = (pq.read_table(next((d / "data").rglob("*.parquet"))).to_pydict() for d in (plain, corrected))
     for key in ("observation.state", "action", "next.observation.state", "observation.effort"):
         assert p[key] == c[key], key  # the source is untouched

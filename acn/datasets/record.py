@@ -26,7 +26,7 @@ from acn.datasets import schema
 from acn.datasets.writer import DatasetWriter
 from acn.errors import UserError
 from acn.toolkit.backends import simulator_version
-from acn.toolkit.collector import FALL_RULE, CollectConfig, Episode, PairedRollout
+from acn.toolkit.collector import FALL_RULE, CollectConfig, Episode, LoadCorrector, rollout_for
 from acn.toolkit.state import ACTION_NAMES, STATE_NAMES
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -81,11 +81,11 @@ def config_from_metadata(acn: dict, **overrides) -> CollectConfig:
     return CollectConfig(**kw)
 
 
-def _simulate(cfg: CollectConfig, indices: list[int], results) -> None:
+def _simulate(cfg: CollectConfig, indices: list[int], results, load_corrector: LoadCorrector | None) -> None:
     """Child process: run ``indices`` with one set of simulators, send each episode back."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides what an interrupt does
     try:
-        rollout = PairedRollout(cfg)
+        rollout = rollout_for(cfg, load_corrector)
         for i in indices:
             results.put(rollout.episode(i))
         rollout.close()
@@ -93,10 +93,12 @@ def _simulate(cfg: CollectConfig, indices: list[int], results) -> None:
         results.put(e)
 
 
-def _episodes_in_order(cfg: CollectConfig, indices: Sequence[int], workers: int, procs: list) -> Iterator[Episode]:
+def _episodes_in_order(cfg: CollectConfig, indices: Sequence[int], workers: int, procs: list,
+                       load_corrector: LoadCorrector | None) -> Iterator[Episode]:
     results = _CTX.Queue()
     for w in range(workers):
-        p = _CTX.Process(target=_simulate, args=(cfg, list(indices[w::workers]), results), daemon=True)
+        p = _CTX.Process(target=_simulate, args=(cfg, list(indices[w::workers]), results, load_corrector),
+                         daemon=True)
         p.start()
         procs.append(p)
     pending: dict[int, Episode] = {}
@@ -121,15 +123,21 @@ def _raise_interrupt(signum, frame):
 
 def record(cfg: CollectConfig, out: str | Path, workers: int = 1, overwrite: bool = False,
            on_episode: Callable[[Episode], None] | None = None, ray: "RayConfig | None" = None,
-           shards: int = 1, indices: Sequence[int] | None = None) -> Path:
+           shards: int = 1, indices: Sequence[int] | None = None, load_corrector: LoadCorrector | None = None
+           ) -> Path:
     """Collect ``cfg.episodes`` episodes and write them to ``out``; returns the dataset path.
 
     ``ray``: simulate on Ray (a local instance or a cluster) instead of ``workers`` processes;
     ``shards``: with ``ray``, K writers in parallel merged into one dataset (``on_episode`` then
     sees a ``ShardEpisode`` as each shard writes it, shards interleaved). ``indices``: the
     collection indices to run (default all ``cfg.episodes``; a shard runs a contiguous part).
+    ``load_corrector``: turns ``cfg.corrector`` into the corrector object where the episodes run
+    (``acn.models.Corrector.load``; needed when ``cfg.corrector`` is set).
     """
     cfg.validate()
+    if cfg.corrector and load_corrector is None:
+        raise ValueError(f"cfg.corrector names {cfg.corrector!r} but no load_corrector was given "
+                         "(e.g. acn.models.Corrector.load)")
     if workers < 1:
         raise ValueError(f"--workers must be >= 1, got {workers}")
     if shards < 1:
@@ -142,13 +150,16 @@ def record(cfg: CollectConfig, out: str | Path, workers: int = 1, overwrite: boo
             if shards > 1:
                 from acn.datasets.shards import record_shards
 
-                return record_shards(cfg, out, shards, ray, overwrite=overwrite, on_episode=on_episode)
-            return _record(cfg, out, parallel.episodes_on_ray(cfg, indices), [], overwrite, on_episode)
+                return record_shards(cfg, out, shards, ray, overwrite=overwrite, on_episode=on_episode,
+                                     load_corrector=load_corrector)
+            return _record(cfg, out, parallel.episodes_on_ray(cfg, indices, load_corrector=load_corrector), [],
+                           overwrite, on_episode)
     if shards > 1:
         raise UserError("--shards needs --ray (the shards are written by Ray tasks)")
     workers = min(workers, len(indices))
     procs: list = []
-    return _record(cfg, out, _episodes_in_order(cfg, indices, workers, procs), procs, overwrite, on_episode)
+    return _record(cfg, out, _episodes_in_order(cfg, indices, workers, procs, load_corrector), procs, overwrite,
+                   on_episode)
 
 
 def _record(cfg: CollectConfig, out: str | Path, episodes: Iterator[Episode], procs: list, overwrite: bool,

@@ -48,14 +48,15 @@ class ShardEpisode:
         return self.length
 
 
-def _write_shard(cfg: CollectConfig, indices: list[int], path: str, ray_config: RayConfig, progress) -> int:
+def _write_shard(cfg: CollectConfig, indices: list[int], path: str, ray_config: RayConfig, progress,
+                 load_corrector=None) -> int:
     """Ray task: write the shard of ``indices`` at ``path``, each written episode reported to
     the ``progress`` queue; returns its finished episodes."""
     def report(ep) -> None:
         progress.put((ep.index, len(ep), ep.end))
 
     try:
-        record(cfg, path, ray=ray_config, indices=indices, on_episode=report)
+        record(cfg, path, ray=ray_config, indices=indices, on_episode=report, load_corrector=load_corrector)
     except Interrupted as e:
         return e.episodes
     return len(indices)
@@ -100,7 +101,7 @@ class _Merge:
 
 
 def record_shards(cfg: CollectConfig, out: str | Path, shards: int, ray_config: RayConfig, overwrite: bool = False,
-                  on_episode: Callable[[ShardEpisode], None] | None = None) -> Path:
+                  on_episode: Callable[[ShardEpisode], None] | None = None, load_corrector=None) -> Path:
     """Collect ``cfg.episodes`` episodes as ``shards`` datasets on Ray and merge them into ``out``.
     Needs an open ``ray_session``; ``on_episode`` sees each episode as its shard writes it."""
     from ray.util.queue import Queue
@@ -130,7 +131,7 @@ def record_shards(cfg: CollectConfig, out: str | Path, shards: int, ray_config: 
                 on_episode(entry)
 
     try:
-        refs = [task.options(scheduling_strategy=here).remote(cfg, r, str(p), ray_config, progress)
+        refs = [task.options(scheduling_strategy=here).remote(cfg, r, str(p), ray_config, progress, load_corrector)
                 for r, p in zip(ranges, paths)]
         running = list(refs)
         while running:

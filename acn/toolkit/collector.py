@@ -9,13 +9,15 @@ One episode, step by step (``PairedRollout.episode``):
 4. stop at the time limit, when either robot falls (``fallen``), or when a simulator blows
    up (the step that diverged is dropped, the episode is kept and marked).
 
-``collect_episodes(config, indices)`` is a pure function of its arguments (it builds its
-own simulators), so it can run in a process pool here or on a distributed engine later.
+``collect_episodes(config, indices, load_corrector)`` is a pure function of its arguments (it
+builds its own simulators, and its corrector with the loader it is given), so it can run in a
+process pool here or on a distributed engine.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any, Callable
 
 import numpy as np
 
@@ -61,7 +63,10 @@ class CollectConfig:
     seed: int = 0
     sim: SimConfig = field(default_factory=SimConfig)
     init_noise: InitNoise = field(default_factory=InitNoise)
-    corrector: str | None = None  # directory of a frozen corrector applied in the target
+    # The frozen corrector applied in the target, as a label (its directory, written into the
+    # metadata); the object itself comes from the caller (``load_corrector`` below): the toolkit
+    # applies a corrector, it does not load one.
+    corrector: str | None = None
     # Physical effects applied to the SOURCE (the measured robot) and never written into the
     # dataset: measurements with a hidden effect, for testing a diagnosis (``acn.toolkit.hidden``).
     hidden_effects: list = field(default_factory=list)  # [AppliedEffect]
@@ -168,7 +173,7 @@ class PairedRollout:
     """Owns the simulators (and corrector) of one process and runs episodes with them."""
 
     def __init__(self, config: CollectConfig, corrector=None, policy: Policy | None = None) -> None:
-        """``corrector``: an object with ``correct(state, action)`` (overrides ``config.corrector``).
+        """``corrector``: an object with ``correct(state, action)`` (``config.corrector`` is its label).
         ``policy``: any object with ``reset(rng)`` and ``__call__(state, t)`` (e.g. a trained PPO
         policy) run instead of the built-in ``config.policy``, which then only labels the data."""
         config.validate(builtin_policy=policy is None)
@@ -176,11 +181,10 @@ class PairedRollout:
         self.source = make_backend(config.source, config.source_sim)
         self.target = make_backend(config.target, config.target_sim) if config.target else None
         self.policy = make_policy(config.policy) if policy is None else policy
-        self.corrector = corrector
         if corrector is None and config.corrector:
-            from acn.models.corrector import Corrector
-
-            self.corrector = Corrector.load(config.corrector)
+            raise ValueError(f"config.corrector names {config.corrector!r}: pass the loaded corrector object "
+                             "(PairedRollout(config, corrector=...)) or load_corrector to the collection function")
+        self.corrector = corrector
 
     def close(self) -> None:
         self.source.close()
@@ -231,9 +235,22 @@ class PairedRollout:
         )
 
 
-def collect_episodes(config: CollectConfig, indices: list[int]) -> list[Episode]:
+LoadCorrector = Callable[[str], Any]  # config.corrector -> an object with correct(state, action)
+
+
+def rollout_for(config: CollectConfig, load_corrector: LoadCorrector | None = None, **kw) -> "PairedRollout":
+    """A ``PairedRollout`` with ``config.corrector`` loaded by ``load_corrector`` (e.g.
+    ``acn.models.Corrector.load``, passed down by the caller: worker processes and Ray tasks
+    build their own rollout and load the corrector there)."""
+    if config.corrector and load_corrector is None:
+        raise ValueError(f"config.corrector names {config.corrector!r} but no load_corrector was given")
+    return PairedRollout(config, corrector=load_corrector(config.corrector) if config.corrector else None, **kw)
+
+
+def collect_episodes(config: CollectConfig, indices: list[int], load_corrector: LoadCorrector | None = None
+                     ) -> list[Episode]:
     """Run the given episodes with freshly built simulators (a pure, picklable unit of work)."""
-    rollout = PairedRollout(config)
+    rollout = rollout_for(config, load_corrector)
     try:
         return [rollout.episode(i) for i in indices]
     finally:

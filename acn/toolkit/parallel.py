@@ -165,11 +165,11 @@ def _cached(key: str, build: Callable[[], Any], close: Callable[[Any], None], si
 
 
 # ----- collection episodes ---------------------------------------------------------------------
-def _collect(key: str, config: "CollectConfig", indices: list[int]) -> list["Episode"]:
+def _collect(key: str, config: "CollectConfig", indices: list[int], load_corrector=None) -> list["Episode"]:
     """Ray task: ``collect_episodes(config, indices)`` with the simulators kept in the worker."""
-    from acn.toolkit.collector import PairedRollout
+    from acn.toolkit.collector import rollout_for
 
-    rollout = _cached("rollout:" + key, lambda: PairedRollout(config), lambda r: r.close(), size=1)
+    rollout = _cached("rollout:" + key, lambda: rollout_for(config, load_corrector), lambda r: r.close(), size=1)
     return [rollout.episode(i) for i in indices]
 
 
@@ -182,7 +182,8 @@ def _remote(ray, name: str, fn: Any, **options) -> Any:
     return _REMOTE[name]
 
 
-def episodes_on_ray(config: "CollectConfig", indices: Iterable[int], in_flight: int | None = None) -> Iterator["Episode"]:
+def episodes_on_ray(config: "CollectConfig", indices: Iterable[int], in_flight: int | None = None,
+                    load_corrector=None) -> Iterator["Episode"]:
     """Yield the episodes ``indices`` in that order, simulated as Ray tasks (one episode each).
 
     At most ``in_flight`` tasks (default ``IN_FLIGHT_PER_CPU`` x the cluster's CPUs) are
@@ -199,7 +200,7 @@ def episodes_on_ray(config: "CollectConfig", indices: Iterable[int], in_flight: 
 
     def submit() -> None:
         for i in todo:
-            running.append(task.remote(key, config_ref, [i]))
+            running.append(task.remote(key, config_ref, [i], load_corrector))
             return
 
     for _ in range(in_flight):
