@@ -78,6 +78,11 @@ def test_same_state_oracle_one_step_and_for_a_policy(small_config, rows):
     assert out.shape == (12,) and not np.allclose(out, actions[10])
     assert oracle.error_after[0] < oracle.error_before[0]
     oracle.close()
+    # Matching the source's applied torque as well changes the correction (benchmarks/reward_gap.py).
+    torque = SameStateOracle("pybullet", small_config.sim, "mujoco", small_config.sim, 1.0 / typical_spread(),
+                             effort_weights=np.ones(12))
+    assert not np.allclose(torque.correct(states[10], actions[10]), out)
+    torque.close()
     # For a policy acting on the target's own state (acn-ppo's evaluations).
     rewards = same_state_oracle(small_config.sim, make_policy("trot"), [states[0]], seconds=0.2)
     assert len(rewards) == 1 and rewards[0].shape == (10,) and np.isfinite(rewards[0]).all()

@@ -8,6 +8,7 @@ re-simulations (channel weights 1 / training spread, the 33 output channels):
   control step with a (``set_state`` + ``step``; ``Resimulator`` on the source's model) and
   delta_a makes the target's next state match that prediction. This is the best any
   corrector F(s, a) can do for the paper's objective (it needs both simulators at every step).
+  With ``effort_weights`` (1 / N m per joint) it matches the source's applied torque too.
 - ``TrackingOracle``: delta_a makes the target's next state match the source TRAJECTORY's
   actual next state (it knows where the source is, which no F(s, a) does); ``goal`` is a
   callable returning it, e.g. ``rollout.source.get_state`` of a ``PairedRollout``, whose
@@ -45,11 +46,18 @@ class _Oracle:
     def _goals(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
         raise NotImplementedError
 
+    def _goal_effort(self) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """(torque to match, its weights) for the last goals, or (None, None)."""
+        return None, None
+
     def correct(self, state, action):
         """a~ = a + delta_a for one (43,) / (12,) row or a batch (N, 43) / (N, 12); numpy out."""
         s = np.asarray(state, float).reshape(-1, STATE_DIM)
         a = np.asarray(action, float).reshape(-1, ACTION_DIM)
-        sol = solve(self.target, s, a, self._goals(s, a), OUTPUT_INDEX, self.weights, self.solver)
+        goals = self._goals(s, a)
+        effort, effort_weights = self._goal_effort()
+        sol = solve(self.target, s, a, goals, OUTPUT_INDEX, self.weights, self.solver, goal_effort=effort,
+                    effort_weights=effort_weights)
         self.error_before.extend(sol.error_before.tolist())
         self.error_after.extend(sol.error_after.tolist())
         return (a + sol.delta).reshape(np.shape(action))
@@ -62,12 +70,22 @@ class SameStateOracle(_Oracle):
     """delta_a so that the target from s matches the SOURCE re-simulated from the same s."""
 
     def __init__(self, source: str, source_sim: SimConfig, target: str, target_sim: SimConfig, weights: np.ndarray,
-                 solver: SolveConfig | None = None, threads: int | None = None) -> None:
+                 solver: SolveConfig | None = None, threads: int | None = None,
+                 effort_weights: np.ndarray | None = None) -> None:
         super().__init__(target, target_sim, weights, solver, threads)
         self.source = Resimulator(source, source_sim, threads=threads)
+        self.effort_weights = None if effort_weights is None else np.broadcast_to(effort_weights, (ACTION_DIM,))
+        self._effort: np.ndarray | None = None
 
     def _goals(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
-        return self.source.run(states, actions).state[:, 0]
+        p = self.source.run(states, actions)
+        self._effort = p.effort[:, 0]
+        return p.state[:, 0]
+
+    def _goal_effort(self) -> tuple[np.ndarray | None, np.ndarray | None]:
+        if self.effort_weights is None:
+            return None, None
+        return self._effort, self.effort_weights
 
     def close(self) -> None:
         super().close()
