@@ -571,7 +571,8 @@ def diagnose_main(argv: list[str] | None = None) -> int:
         if args.closed_loop:  # refuse a log that cannot be re-run before the diagnosis, not after
             from acn.models.diagnose.transfer import robot_config
 
-            robot_config(args.measured, data, args.side, model, args.closed_loop, args.closed_loop_seconds)
+            robot_config(args.measured, data, args.side, model, args.closed_loop, args.closed_loop_seconds,
+                         args.corrector)
         from tqdm import tqdm
 
         with _ray_executor(args, "acn-diagnose"), tqdm(total=100, file=sys.stderr, bar_format="{l_bar}{bar}| {elapsed} {postfix}",

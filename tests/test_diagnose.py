@@ -228,6 +228,14 @@ def test_bad_measurements_are_refused(tmp_path, capsys, small_dataset):
     assert "unknown key" in capsys.readouterr().err
     assert diagnose_main([str(tmp_path / "nowhere")]) == 2
     assert "does not exist" in capsys.readouterr().err
+    # A closed-loop mistake is refused before the diagnosis runs (seconds, not minutes).
+    (tmp_path / "with.json").write_text(json.dumps({"backend": "mujoco", "corrector": str(tmp_path)}))
+    assert diagnose_main([str(small_dataset), "--model", str(tmp_path / "with.json"), "--closed-loop", "1",
+                          "--corrector", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "already has the corrector" in err[0], err
+    assert diagnose_main([str(small_dataset), "--side", "target", "--closed-loop", "1"]) == 2
+    assert "--side source" in capsys.readouterr().err
     with pytest.raises(UserError, match="no target side"):
         load_measurements(measured_path(tmp_path), side="target")
 

@@ -10,7 +10,8 @@ physics and a network, get the same numbers:
   control settings and physical parameters, its policy acting on the ROBOT's state (as in the
   collector); with its hidden effects from ``DIR.answer.json`` when it has them (they drive the
   robot only, the way a real robot carries its physics; the model never sees them);
-- ``uncorrected``: the model as given, driven with the robot's actions;
+- ``uncorrected``: the model as given, driven with the robot's actions (``as given`` when the
+  model file carries a corrector of its own);
 - ``corrected``: the same model with a corrector applied (``--corrector DIR``): the network's answer;
 - ``with effects``: the model after the diagnosis added its effects: the physics answer;
 - ``same_state_oracle`` and ``tracking_oracle``: the bounds on any corrector of the given model
@@ -36,11 +37,13 @@ from acn.errors import UserError
 from acn.toolkit.effects import Model
 
 WITH_EFFECTS = "with effects"
-ORDER = ("uncorrected", "corrected", WITH_EFFECTS, "same_state_oracle", "tracking_oracle")
+ORDER = ("uncorrected", "as given", "corrected", WITH_EFFECTS, "same_state_oracle", "tracking_oracle")
 
 
-def robot_config(dataset: str | Path, data: Measurements, side: str, model: Model, episodes: int, seconds: float):
-    """The held-out closed-loop ``CollectConfig``: source = the robot, target = ``model``."""
+def robot_config(dataset: str | Path, data: Measurements, side: str, model: Model, episodes: int, seconds: float,
+                 corrector_dir: str | Path | None = None):
+    """The held-out closed-loop ``CollectConfig``: source = the robot, target = ``model``; checks
+    everything a closed loop needs (called before the diagnosis, so a mistake costs nothing)."""
     from dataclasses import replace
 
     from acn.datasets.record import config_from_metadata
@@ -54,6 +57,9 @@ def robot_config(dataset: str | Path, data: Measurements, side: str, model: Mode
                         "not an acn-collect dataset whose simulator and policy can be run again")
     if side != "source":
         raise UserError("--closed-loop needs --side source: the collected policy acts on the source's state")
+    if model.corrector and corrector_dir:
+        raise UserError(f"the model already has the corrector {model.corrector}; give --corrector only for a model "
+                        "without one")
     cfg = config_from_metadata(info)
     hidden: list = []
     answer = answer_path(dataset)
@@ -81,15 +87,13 @@ def closed_loop_models(dataset: str | Path, data: Measurements, side: str, befor
     from acn.models.evaluate import run_episodes, run_oracles, summarise
     from acn.toolkit.state import STATE_NAMES
 
-    if before.corrector and corrector_dir:
-        raise UserError(f"the model already has the corrector {before.corrector}; give --corrector only for a model "
-                        "without one")
-    cfg = robot_config(dataset, data, side, before, episodes, seconds)
+    cfg = robot_config(dataset, data, side, before, episodes, seconds, corrector_dir)
     index = [STATE_NAMES.index(c) for c in OUTPUT_CHANNELS]
     spread = np.nanstd(data.next_state[:, index], axis=0)
     spread = np.where(np.isfinite(spread) & (spread > 1e-9), spread, 1.0)
     say = log or (lambda _: None)
-    runs, names = {}, {"uncorrected": before.describe()}
+    first = "as given" if before.corrector else "uncorrected"  # a model file may carry its own corrector
+    runs, names = {}, {first: before.describe() + (f" + corrector {before.corrector}" if before.corrector else "")}
 
     def corrector_of(model: Model, extra=None):
         path = extra or model.corrector
@@ -97,7 +101,7 @@ def closed_loop_models(dataset: str | Path, data: Measurements, side: str, befor
 
     say(f"closed loop: the robot ({cfg.source}{' with its hidden effects' if cfg.hidden_effects else ''}) "
         f"and the model, {episodes} held-out episode(s) of {seconds:g} s")
-    runs["uncorrected"] = run_episodes(cfg, corrector_of(before), episodes)
+    runs[first] = run_episodes(cfg, corrector_of(before), episodes)
     if corrector_dir:
         runs["corrected"] = run_episodes(cfg, corrector_of(before, corrector_dir), episodes)
         names["corrected"] = f"{before.describe()} + corrector {corrector_dir}"
