@@ -191,6 +191,7 @@ def test_cli_writes_json_report_and_model(tmp_path, capsys):
         assert key in result["ranking"][0]
     added = result["added"][0]
     assert added["name"] == "motor_strength" and added["headline_after"] < added["headline_before"]
+    assert all(p["identified"] for p in added["free_parameters"])
     assert "summary" in result["where"] and "by_joint" in result["where"]
     html = (tmp_path / "r.html").read_text()
     assert "plotly" in html.lower() and "motor_strength" in html and "<script" in html
@@ -273,3 +274,17 @@ def test_measurements_at_another_rate_or_without_joints_are_one_line_errors(tmp_
     assert diagnose_main([str(tmp_path / "ok")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "joint positions and actions" in err[0], err
+
+
+def test_parameters_the_data_cannot_pin_down_are_flagged():
+    """A standard error above half the largest realistic magnitude: not identified (0.15 rad for offsets)."""
+    from acn.models.diagnose.fitting import EffectFit
+    from acn.models.diagnose.rank import unidentified
+    from acn.toolkit.state import JOINT_NAMES
+
+    effect = get_effect("encoder_offset")
+    stderr = np.full(12, 0.004)
+    stderr[:3] = [0.16, 0.36, np.inf]  # e.g. a leg in the air most of the time
+    fit = EffectFit(effect, "joint", {"value": np.zeros(12)}, [f"value[{j}]" for j in JOINT_NAMES], np.zeros(12),
+                    stderr, Model("mujoco"), cost=0.0, evaluations=0, nominal={"value": np.zeros(12)})
+    assert unidentified(fit) == ["value[FR_hip]", "value[FR_thigh]", "value[FR_calf]"]

@@ -33,6 +33,7 @@ LARGE_IMPROVEMENT = 0.25     # of the error (MSE): significant however unevenly 
 BLOCK = 10                   # rows per block in the significance test
 LARGEST_FACTOR = 2.0         # a fit further from nominal than this x the largest realistic magnitude is implausible
 SMALLEST_SHARE = 0.75        # of the smallest realistic magnitude a named effect must reach
+UNIDENTIFIED_SHARE = 0.5     # a standard error above this x the largest realistic magnitude: not identified
 STRUCTURED_SHARE = 0.15      # of the error that must be above the noise floor before an effect is missing
 PARSIMONY_Z = 2.0            # a richer candidate must beat a simpler one by this much to rank first,
 PARSIMONY_SHARE = 0.9        # and the simpler one remove less than this share of what it removes
@@ -82,6 +83,20 @@ def _magnitudes(fit: EffectFit) -> list[tuple[str, float, float, float]]:
         sizes = p.realistic if p.signed else tuple(sorted(abs(x - p.nominal) for x in p.realistic))
         out.append((p.name, float(np.abs(v - nominal).max()), sizes[0], sizes[1]))
     return out
+
+
+def unidentified(fit: EffectFit) -> list[str]:
+    """Free parameters these data do not pin down: a standard error above half the largest
+    realistic magnitude, so the 95 % interval reaches from nominal to beyond a realistic value
+    (e.g. the encoder offsets of a leg that is in the air most of the time: in the air an offset
+    moves the reading and the leg together, only the trunk sees it)."""
+    largest = {}
+    for p in fit.effect.parameters:
+        if p.realistic is not None:
+            sizes = p.realistic if p.signed else tuple(sorted(abs(x - p.nominal) for x in p.realistic))
+            largest[p.name] = sizes[1]
+    return [n for n, e in zip(fit.names, fit.stderr)
+            if n.split("[")[0] in largest and not e <= UNIDENTIFIED_SHARE * largest[n.split("[")[0]]]
 
 
 def too_small(fit: EffectFit) -> bool:

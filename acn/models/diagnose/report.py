@@ -8,9 +8,10 @@ JSON keys (the machine-readable contract):
 - ``noise_floor``: MSE, share of the error, per channel group;
 - ``where``: the breakdown (``where`` module) with its ``summary``;
 - ``ranking``: best first, each ``name``, ``params`` (as in a model file), ``granularity``,
-  ``free_parameters`` (value and ``stderr`` each), ``explained`` (share 0..1 of the error
-  above the noise floor), ``removed`` (share of the whole error), ``z``, ``significant``,
-  ``score``;
+  ``free_parameters`` (``value``, ``stderr`` and ``identified`` each: false when the standard
+  error exceeds half the largest realistic magnitude, ``rank.unidentified``), ``explained``
+  (share 0..1 of the error above the noise floor), ``removed`` (share of the whole error),
+  ``z``, ``significant``, ``score``;
 - ``added`` (with ``--add`` / ``--auto``): in order, ``name``, ``params``, ``error_before`` and
   ``error_after`` (horizon -> group), ``headline_before``, ``headline_after``, ``explained``;
 - ``model`` and ``final_model``: the model files before and after;
@@ -32,8 +33,7 @@ import numpy as np
 from acn.models.diagnose.add import Added
 from acn.models.diagnose.compare import Comparison, group_errors
 from acn.models.diagnose.pipeline import Diagnosis
-from acn.models.diagnose.rank import implausible
-from acn.models.diagnose.rank import Candidate
+from acn.models.diagnose.rank import Candidate, implausible, unidentified
 from acn.models.diagnose.transfer import table as closed_loop_table
 
 HEADLINE = ("one-step teacher-forced prediction error on held-out rows: RMS over every compared channel of "
@@ -45,7 +45,15 @@ def _errors(c: Comparison) -> dict:
 
 
 def _free(fit) -> list[dict]:
-    return [{"name": n, "value": float(v), "stderr": float(e)} for n, v, e in zip(fit.names, fit.x, fit.stderr)]
+    loose = set(unidentified(fit))
+    return [{"name": n, "value": float(v), "stderr": float(e), "identified": n not in loose}
+            for n, v, e in zip(fit.names, fit.x, fit.stderr)]
+
+
+def _unidentified_text(fit) -> str:
+    loose = unidentified(fit)
+    return (f"not identified by these data (standard error above half the largest realistic magnitude): "
+            f"{', '.join(loose)}") if loose else ""
 
 
 def _params_text(fit, most: int = 4) -> str:
@@ -143,8 +151,9 @@ def terminal(d: Diagnosis) -> str:
                      "yes" if j.significant else "no", params])
     out.append(_table(["effect", "fitted as", "explained", "error removed", "z", "significant", "parameters"], rows))
     for a in d.added:
-        out += ["", f"added {a.name} ({a.fit.granularity}): {a.fit.effect.to_json(a.fit.values)}",
-                f"headline {a.before.headline:.4f} -> {a.after.headline:.4f}", error_table(a.before, a.after)]
+        out += ["", f"added {a.name} ({a.fit.granularity}): {a.fit.effect.to_json(a.fit.values)}"]
+        out += [t for t in [_unidentified_text(a.fit)] if t]
+        out += [f"headline {a.before.headline:.4f} -> {a.after.headline:.4f}", error_table(a.before, a.after)]
     out += ["", f"verdict: {d.verdict} ({d.reason})"]
     if d.closed_loop:
         out += ["", closed_loop_table(d.closed_loop)]
@@ -217,7 +226,9 @@ def write_html(d: Diagnosis, path: str | Path) -> Path:
         f"<td>{c.judgement.removed:+.1%}</td><td>{c.judgement.z:.1f}</td>"
         f"<td>{html.escape(_params_text(c.fit))}</td></tr>" for c in d.ranking)
     added = "".join(f"<li><b>{a.name}</b> ({a.fit.granularity}) {html.escape(_params_text(a.fit))}: headline "
-                    f"{a.before.headline:.4f} &rarr; {a.after.headline:.4f}</li>" for a in d.added)
+                    f"{a.before.headline:.4f} &rarr; {a.after.headline:.4f}"
+                    f"{'<br><i>' + html.escape(_unidentified_text(a.fit)) + '</i>' if unidentified(a.fit) else ''}</li>"
+                    for a in d.added)
     body = f"""<!doctype html><html><head><meta charset="utf-8"><title>acn-diagnose: {html.escape(d.measurements)}</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:4px 8px}}</style></head><body>
