@@ -12,6 +12,14 @@ style):
   products with the PD error and speed, and a constant per joint;
 - for the trunk channels, one regression on the whole state, actions and action changes.
 
+The terms are instrumented (two-stage least squares): the model starts each row from the
+measured state, so row t's residual carries the sensor noise of the state at t, and terms of
+that same state would learn to predict part of the noise (the floor came out too low on noisy
+logs: a correct friction fit "explained" 75 % of the error above it). So each term at row t is
+first predicted, by least squares on the fit rows, from the terms at rows t - 2 and t + 2 (which
+share no noise with row t), and the residual is regressed on those predictions. Rows without
+both neighbours in their episode are left out of the floor.
+
 What they leave on held-out rows is the floor (per channel, never above the error itself).
 A linear library cannot represent every effect, so the floor is an upper bound on sensor
 noise; the pipeline lowers it to what the best fitted candidate achieves.
@@ -26,6 +34,8 @@ from acn.toolkit.state import JOINT_NAMES, NUM_JOINTS, SLICES, STATE_NAMES
 
 _SKIP = ("base_pos_x", "base_pos_y", "base_yaw")  # where the robot is and faces carries no dynamics
 RIDGE = 1e-3  # regularisation, relative to the mean feature variance
+LAG = 2       # control steps to the instrument rows (as the instrumental refit, fitting.IV_LAG)
+INSTRUMENTED = True  # two-stage least squares (module docstring); False: terms of row t's own state
 
 
 def joint_library(d: Measurements, rows: np.ndarray) -> np.ndarray:
@@ -62,22 +72,63 @@ def _ridge_left(x_fit: np.ndarray, y_fit: np.ndarray, x_held: np.ndarray, y_held
     return (xh @ coef - y_held) ** 2
 
 
+def _with_neighbours(d: Measurements, rows: np.ndarray) -> np.ndarray:
+    """Mask of ``rows`` whose rows LAG steps before and after are in the same episode."""
+    ok = np.ones(len(rows), dtype=bool)
+    for shift in (-LAG, LAG):
+        other = np.clip(rows + shift, 0, len(d) - 1)
+        ok &= (rows + shift >= 0) & (rows + shift < len(d)) & (d.episode[other] == d.episode[rows]) & \
+            (d.frame[other] == d.frame[rows] + shift)
+    return ok
+
+
+def _instrumented(library, d: Measurements, fit_rows: np.ndarray, held_rows: np.ndarray):
+    """The library at rows t, as predicted (least squares on the fit rows) from the library at
+    rows t - LAG and t + LAG, for fit and held-out rows: two-stage least squares. The measured
+    state at t carries the very sensor noise that row t's residual carries (the model starts
+    from it); the rows around share none of it, so what the second stage predicts is dynamics,
+    not noise."""
+    def stacked(rows):
+        x = library(d, rows)
+        z = np.concatenate([library(d, rows - LAG), library(d, rows + LAG)], axis=-1)
+        return x.reshape(-1, x.shape[-1]), z.reshape(-1, z.shape[-1])
+
+    (xf, zf), (_, zh) = stacked(fit_rows), stacked(held_rows)
+    zf1, zh1 = np.hstack([zf, np.ones((len(zf), 1))]), np.hstack([zh, np.ones((len(zh), 1))])
+    gram = zf1.T @ zf1
+    coef = np.linalg.solve(gram + 1e-9 * np.trace(gram) / len(gram) * np.eye(len(gram)), zf1.T @ xf)
+    return zf1 @ coef, zh1 @ coef
+
+
 def noise_floor(d: Measurements, channel_names: list[str], fit_rows: np.ndarray, r_fit: np.ndarray,
                 held_rows: np.ndarray, r_held: np.ndarray) -> np.ndarray:
     """(C,) held-out MSE per compared channel left after the regressions (module docstring)."""
+    if INSTRUMENTED:
+        f_ok, h_ok = _with_neighbours(d, fit_rows), _with_neighbours(d, held_rows)
+        if f_ok.sum() >= 50 and h_ok.sum() >= 10:
+            fit_rows, r_fit, held_rows, r_held = fit_rows[f_ok], r_fit[f_ok], held_rows[h_ok], r_held[h_ok]
+        else:
+            f_ok = None
     left = r_held ** 2
     per_joint = [[channel_names.index(c) for c in (f"{j}_pos", f"{j}_vel") if c in channel_names]
                  for j in JOINT_NAMES]
+    use_iv = INSTRUMENTED and f_ok is not None
+
+    def features(library):
+        if use_iv:
+            return _instrumented(library, d, fit_rows, held_rows)
+        xf, xh = library(d, fit_rows), library(d, held_rows)
+        return xf.reshape(-1, xf.shape[-1]), xh.reshape(-1, xh.shape[-1])
+
     if all(per_joint) and len({len(c) for c in per_joint}) == 1:
         cols = np.array(per_joint)                                     # (12, outputs)
-        xf, xh = joint_library(d, fit_rows), joint_library(d, held_rows)
+        xf, xh = features(joint_library)
         yf, yh = r_fit[:, cols], r_held[:, cols]                       # (N, 12, outputs)
-        out = _ridge_left(xf.reshape(-1, xf.shape[2]), yf.reshape(-1, yf.shape[2]),
-                          xh.reshape(-1, xh.shape[2]), yh.reshape(-1, yh.shape[2]))
+        out = _ridge_left(xf, yf.reshape(-1, yf.shape[2]), xh, yh.reshape(-1, yh.shape[2]))
         left[:, cols] = out.reshape(yh.shape)
     joint_channels = {c for cols in per_joint for c in cols}
     body = [i for i in range(len(channel_names)) if i not in joint_channels]
     if body:
-        left[:, body] = _ridge_left(body_library(d, fit_rows), r_fit[:, body], body_library(d, held_rows),
-                                    r_held[:, body])
+        xf, xh = features(body_library)
+        left[:, body] = _ridge_left(xf, r_fit[:, body], xh, r_held[:, body])
     return np.minimum(left.mean(0), (r_held ** 2).mean(0))
