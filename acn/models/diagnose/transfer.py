@@ -77,8 +77,8 @@ def closed_loop_models(dataset: str | Path, data: Measurements, side: str, befor
                        log: Callable[[str], None] | None = None) -> dict:
     """Robot vs ``before`` (uncorrected), ``before`` + corrector, ``after``, and the oracles (module doc).
 
-    Returns ``acn.models.evaluate.summarise``'s dict (``runs`` by name) plus ``models`` (the run
-    names' descriptions) and ``hidden_effects`` (what the robot carried, if anything).
+    Returns ``acn.models.evaluate.summarise``'s dict (``runs`` by name, in ``ORDER``) plus
+    ``models`` (what each run ran) and ``robot`` (its simulator, hidden effects, policy, seed).
     """
     from dataclasses import replace
 
