@@ -314,3 +314,20 @@ def test_closed_loop_of_a_model_runs_beside_the_corrector_and_the_oracles(fitted
     assert runs["with effects"]["divergence"] != pytest.approx(runs["uncorrected"]["divergence"])
     assert runs["tracking_oracle"]["divergence"] < runs["uncorrected"]["divergence"]
     assert out["models"]["with effects"].startswith("mujoco + joint_damping")
+
+
+def test_data_of_a_policy_acn_cannot_run_is_fitted_without_the_closed_loop(paired, tmp_path):
+    """acn-ppo's paired datasets (policy 'ppo'): the closed-loop evaluation needs the policy, so it is
+    skipped with a message instead of failing after training (and writing nothing)."""
+    import shutil
+
+    data = tmp_path / "ppo_paired"
+    shutil.copytree(paired, data)
+    info_path = data / "meta" / "info.json"
+    info = json.loads(info_path.read_text())
+    info["acn"]["policy"] = "ppo"
+    info_path.write_text(json.dumps(info))
+    lines: list[str] = []
+    model, metrics = fit([data], FitConfig(variant="paper", **FAST), log=lines.append)
+    assert "closed_loop" not in metrics and any("closed-loop evaluation skipped" in s for s in lines)
+    assert save(model, metrics, tmp_path / "model").is_dir()

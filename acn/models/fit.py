@@ -573,7 +573,12 @@ def fit(paths: list[str | Path], cfg: FitConfig, log=print) -> tuple[Corrector, 
         o = metrics["one_step"]
         log(f"one-step same-state error on held-out rows: {o['error_no_correction']:.4f} -> corrector "
             f"{o['error_corrected']:.4f}, oracle {o['error_oracle']:.4f}: share_of_oracle={o['share_of_oracle']:.3f}")
-    if cfg.eval_episodes > 0:
+    from acn.toolkit.policies import POLICIES
+
+    if cfg.eval_episodes > 0 and data.info.get("policy") not in POLICIES:
+        log(f"closed-loop evaluation skipped: the dataset's policy {data.info.get('policy')!r} is not a built-in "
+            "policy this command can run again (for a PPO policy: acn-ppo --eval POLICY --corrector DIR)")
+    elif cfg.eval_episodes > 0:
         from acn.datasets.record import config_from_metadata
         from acn.models.evaluate import closed_loop
 
