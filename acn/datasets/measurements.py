@@ -52,6 +52,16 @@ class Measurements:
         """(43,) bool: channels that were measured."""
         return np.array([n not in self.missing for n in STATE_NAMES])
 
+    def with_neighbours(self, rows: np.ndarray, lag: int) -> np.ndarray:
+        """Mask of ``rows`` whose rows ``lag`` control steps before and after are in the same
+        episode (call it on whole measurements, as ``previous_actions``)."""
+        ok = np.ones(len(rows), dtype=bool)
+        for shift in (-lag, lag):
+            other = np.clip(rows + shift, 0, len(self) - 1)
+            ok &= (rows + shift >= 0) & (rows + shift < len(self)) & (self.episode[other] == self.episode[rows]) & \
+                (self.frame[other] == self.frame[rows] + shift)
+        return ok
+
     def subset(self, rows: np.ndarray) -> "Measurements":
         return Measurements(self.state[rows], self.action[rows], self.next_state[rows], self.effort[rows],
                             self.episode[rows], self.frame[rows], self.control, self.info, self.description,

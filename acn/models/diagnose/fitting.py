@@ -348,13 +348,7 @@ def instrumental_refit(problem: Problem, base: Model, fit: EffectFit, rows: np.n
     """
     if not any(p.per_joint for p in fit.effect.parameters):
         return fit
-    d = problem.data
-    ok = np.ones(len(rows), dtype=bool)
-    for shift in (-IV_LAG, IV_LAG):  # rows IV_LAG steps before and after, in the same episode
-        other = np.clip(rows + shift, 0, len(d) - 1)
-        ok &= (rows + shift >= 0) & (rows + shift < len(d)) & (d.episode[other] == d.episode[rows]) & \
-            (d.frame[other] == d.frame[rows] + shift)
-    rows = rows[ok]
+    rows = rows[problem.data.with_neighbours(rows, IV_LAG)]
     lag = np.concatenate([rows - IV_LAG, rows + IV_LAG])
     free = _together(problem, base, fit.effect, fit.granularity, refit)
     if len(rows) < 10 * len(fit.x):

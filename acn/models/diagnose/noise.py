@@ -30,12 +30,11 @@ from __future__ import annotations
 import numpy as np
 
 from acn.datasets.measurements import Measurements
+from acn.models.diagnose.fitting import IV_LAG as LAG  # rows t - LAG and t + LAG share no noise with row t
 from acn.toolkit.state import JOINT_NAMES, NUM_JOINTS, SLICES, STATE_NAMES
 
 _SKIP = ("base_pos_x", "base_pos_y", "base_yaw")  # where the robot is and faces carries no dynamics
 RIDGE = 1e-3  # regularisation, relative to the mean feature variance
-LAG = 2       # control steps to the instrument rows (as the instrumental refit, fitting.IV_LAG)
-INSTRUMENTED = True  # two-stage least squares (module docstring); False: terms of row t's own state
 
 
 def joint_library(d: Measurements, rows: np.ndarray) -> np.ndarray:
@@ -72,16 +71,6 @@ def _ridge_left(x_fit: np.ndarray, y_fit: np.ndarray, x_held: np.ndarray, y_held
     return (xh @ coef - y_held) ** 2
 
 
-def _with_neighbours(d: Measurements, rows: np.ndarray) -> np.ndarray:
-    """Mask of ``rows`` whose rows LAG steps before and after are in the same episode."""
-    ok = np.ones(len(rows), dtype=bool)
-    for shift in (-LAG, LAG):
-        other = np.clip(rows + shift, 0, len(d) - 1)
-        ok &= (rows + shift >= 0) & (rows + shift < len(d)) & (d.episode[other] == d.episode[rows]) & \
-            (d.frame[other] == d.frame[rows] + shift)
-    return ok
-
-
 def _instrumented(library, d: Measurements, fit_rows: np.ndarray, held_rows: np.ndarray):
     """The library at rows t, as predicted (least squares on the fit rows) from the library at
     rows t - LAG and t + LAG, for fit and held-out rows: two-stage least squares. The measured
@@ -103,16 +92,13 @@ def _instrumented(library, d: Measurements, fit_rows: np.ndarray, held_rows: np.
 def noise_floor(d: Measurements, channel_names: list[str], fit_rows: np.ndarray, r_fit: np.ndarray,
                 held_rows: np.ndarray, r_held: np.ndarray) -> np.ndarray:
     """(C,) held-out MSE per compared channel left after the regressions (module docstring)."""
-    if INSTRUMENTED:
-        f_ok, h_ok = _with_neighbours(d, fit_rows), _with_neighbours(d, held_rows)
-        if f_ok.sum() >= 50 and h_ok.sum() >= 10:
-            fit_rows, r_fit, held_rows, r_held = fit_rows[f_ok], r_fit[f_ok], held_rows[h_ok], r_held[h_ok]
-        else:
-            f_ok = None
+    f_ok, h_ok = d.with_neighbours(fit_rows, LAG), d.with_neighbours(held_rows, LAG)
+    use_iv = f_ok.sum() >= 50 and h_ok.sum() >= 10  # else (short episodes) the terms of row t's own state
+    if use_iv:
+        fit_rows, r_fit, held_rows, r_held = fit_rows[f_ok], r_fit[f_ok], held_rows[h_ok], r_held[h_ok]
     left = r_held ** 2
     per_joint = [[channel_names.index(c) for c in (f"{j}_pos", f"{j}_vel") if c in channel_names]
                  for j in JOINT_NAMES]
-    use_iv = INSTRUMENTED and f_ok is not None
 
     def features(library):
         if use_iv:

@@ -24,7 +24,7 @@ import numpy as np
 
 from acn.models.diagnose.fitting import EffectFit, default_granularity, fit_effect, refittable
 from acn.models.diagnose.problem import DiagnoseConfig, Problem
-from acn.toolkit.effects import Model, get_effect
+from acn.toolkit.effects import Model, Parameter, get_effect
 
 PRICE_PER_PARAMETER = 0.003  # explained share a parameter has to earn
 SIGNIFICANCE_Z = 3.0
@@ -71,6 +71,11 @@ def at_bound(fit: EffectFit) -> list[str]:
     return out
 
 
+def _realistic_magnitudes(p: Parameter) -> tuple[float, float]:
+    """(smallest, largest) realistic distance from nominal of a parameter with a realistic range."""
+    return p.realistic if p.signed else tuple(sorted(abs(x - p.nominal) for x in p.realistic))
+
+
 def _magnitudes(fit: EffectFit) -> list[tuple[str, float, float, float]]:
     """(name, largest |fitted - nominal|, smallest and largest realistic magnitude) per parameter
     with a realistic range."""
@@ -80,8 +85,7 @@ def _magnitudes(fit: EffectFit) -> list[tuple[str, float, float, float]]:
             continue
         v = np.atleast_1d(np.asarray(fit.values[p.name], float))
         nominal = np.atleast_1d(np.asarray(fit.nominal[p.name], float))
-        sizes = p.realistic if p.signed else tuple(sorted(abs(x - p.nominal) for x in p.realistic))
-        out.append((p.name, float(np.abs(v - nominal).max()), sizes[0], sizes[1]))
+        out.append((p.name, float(np.abs(v - nominal).max()), *_realistic_magnitudes(p)))
     return out
 
 
@@ -90,11 +94,7 @@ def unidentified(fit: EffectFit) -> list[str]:
     realistic magnitude, so the 95 % interval reaches from nominal to beyond a realistic value
     (e.g. the encoder offsets of a leg that is in the air most of the time: in the air an offset
     moves the reading and the leg together, only the trunk sees it)."""
-    largest = {}
-    for p in fit.effect.parameters:
-        if p.realistic is not None:
-            sizes = p.realistic if p.signed else tuple(sorted(abs(x - p.nominal) for x in p.realistic))
-            largest[p.name] = sizes[1]
+    largest = {p.name: _realistic_magnitudes(p)[1] for p in fit.effect.parameters if p.realistic is not None}
     return [n for n, e in zip(fit.names, fit.stderr)
             if n.split("[")[0] in largest and not e <= UNIDENTIFIED_SHARE * largest[n.split("[")[0]]]
 
