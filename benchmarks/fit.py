@@ -33,7 +33,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from acn.models.acn import INPUT_CHANNELS, OUTPUT_CHANNELS
-from acn.models.corrector import Corrector, default_config
+from acn.models.corrector import Corrector, default_config, torch_threads
 from acn.models.fit import FitConfig, Split, train
 
 N_IN, N_OUT, N_ACT = len(INPUT_CHANNELS) + 12, len(OUTPUT_CHANNELS), 12
@@ -105,10 +105,8 @@ def main() -> None:
     x, r = torch.randn(args.samples, N_IN), torch.randn(args.samples, N_OUT)
     make = lambda: Corrector(default_config("paper", 256, 2))  # noqa: E731
     base = baseline(make(), x, r, args.epochs)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    base_1 = baseline(make(), x, r, args.epochs)
-    torch.set_num_threads(threads)
+    with torch_threads(1):
+        base_1 = baseline(make(), x, r, args.epochs)
     model = make()
     cfg = FitConfig(variant="paper", epochs=args.epochs)  # the paper's network and batch 256
     t = time.perf_counter()

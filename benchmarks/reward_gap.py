@@ -22,10 +22,9 @@ from acn.datasets.measurements import load_measurements
 from acn.datasets.reader import read_info
 from acn.datasets.record import config_from_metadata
 from acn.models.acn import OUTPUT_CHANNELS
-from acn.models.evaluate import held_out, run_episodes, summarise, typical_spread
+from acn.models.evaluate import held_out, output_spread, run_episodes, summarise, typical_spread
 from acn.models.oracle import SameStateOracle
 from acn.toolkit.reward import REWARD_WEIGHTS, reward_terms
-from acn.toolkit.state import STATE_NAMES
 
 TERMS = ("forward_speed", "torque", "tilt", "joint_speed")
 
@@ -45,8 +44,7 @@ def main() -> None:
     args = ap.parse_args()
     cfg = held_out(config_from_metadata(read_info(args.dataset)["acn"]), args.episodes, args.seconds)
     target = load_measurements(args.dataset, side="target")
-    index = [STATE_NAMES.index(c) for c in OUTPUT_CHANNELS]
-    spread = np.maximum(np.nanstd(target.state[:, index], axis=0), 1e-9)
+    spread = output_spread(target.state)
     oracles = {"oracle_dataset_weights": dict(weights=1 / spread),
                "oracle_typical_weights": dict(weights=1 / typical_spread()),
                "oracle_matching_torque": dict(weights=1 / spread, effort_weights=np.ones(12))}

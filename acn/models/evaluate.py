@@ -42,7 +42,7 @@ from acn.datasets.reader import state_difference
 from acn.models.acn import OUTPUT_CHANNELS
 from acn.models.corrector import torch_threads
 from acn.models.labels import SolveConfig
-from acn.models.oracle import SameStateOracle, TrackingOracle
+from acn.models.oracle import OUTPUT_INDEX, SameStateOracle, TrackingOracle
 from acn.toolkit.collector import CollectConfig, Episode, PairedRollout, Trace, fallen
 from acn.toolkit.reward import REWARD_WEIGHTS
 from acn.toolkit.reward import reward as step_reward
@@ -60,6 +60,13 @@ TYPICAL_SPREAD: dict[str, float] = {"base_pos": 0.01, "base_rpy": 0.07, "joint_p
 def typical_spread(channels: Sequence[str] = OUTPUT_CHANNELS) -> np.ndarray:
     group = {n: g for g, names in GROUPS.items() for n in names}
     return np.array([TYPICAL_SPREAD[group[c]] for c in channels])
+
+
+def output_spread(states: np.ndarray, floor: float = 1e-8) -> np.ndarray:
+    """(33,) spread (std) of each output channel over ``states`` (N, 43), NaN (missing channels)
+    ignored, 1 where a channel does not vary: the channel scale of divergence and oracle weights."""
+    std = np.nanstd(np.asarray(states, float)[:, OUTPUT_INDEX], axis=0)
+    return np.where(np.isfinite(std) & (std > floor), std, 1.0)
 
 
 def reward(trace: Trace) -> np.ndarray:

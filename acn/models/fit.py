@@ -48,7 +48,9 @@ from acn.datasets.reader import PairedTransitions, load_paired, percentile_filte
 from acn.errors import UserError
 from acn.models.acn import INPUT_CHANNELS, LABELLED, OUTPUT_CHANNELS, VARIANTS, acn_loss, input_channels, regression_loss
 from acn.models.corrector import Corrector, default_config, torch_threads
+from acn.models.evaluate import output_spread
 from acn.models.labels import Solution, SolveConfig
+from acn.toolkit.policies import POLICIES
 from acn.toolkit.state import STATE_NAMES
 
 MIN_TRAIN_ROWS = 64
@@ -241,7 +243,7 @@ class Normaliser:
         self.state_mean, self.state_std = s.mean(0), _safe_std(s)
         self.action_mean, self.action_std = actions.mean(0), _safe_std(actions)
         self.residual_std = _safe_std(residual)
-        self.state_spread = _safe_std(spread_states[:, _OUT])  # channel scale: divergence, label weights
+        self.state_spread = output_spread(spread_states)  # channel scale: divergence, label weights
         self.delta_scale = None if delta is None else _safe_std(delta, floor=1e-6)
 
     def inputs(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
@@ -456,7 +458,7 @@ def fit(paths: list[str | Path], cfg: FitConfig, log=print) -> tuple[Corrector, 
     train_d, val_d = data.subset(~is_val), data.subset(is_val)
     val_all = val_d  # every held-out row: the one-step evaluation is on the same rows for every variant
     # Channel scale (divergence metric, label and oracle weights 1 / spread): all training rows.
-    spread = _safe_std(train_d.target_state[:, _OUT])
+    spread = output_spread(train_d.target_state)
     gap_train = train_d.gap(_IN)
     pct = cfg.filter_percentile
     threshold = float(np.percentile(gap_train, pct)) if pct < 100 else np.inf
@@ -573,8 +575,6 @@ def fit(paths: list[str | Path], cfg: FitConfig, log=print) -> tuple[Corrector, 
         o = metrics["one_step"]
         log(f"one-step same-state error on held-out rows: {o['error_no_correction']:.4f} -> corrector "
             f"{o['error_corrected']:.4f}, oracle {o['error_oracle']:.4f}: share_of_oracle={o['share_of_oracle']:.3f}")
-    from acn.toolkit.policies import POLICIES
-
     if cfg.eval_episodes > 0 and data.info.get("policy") not in POLICIES:
         log(f"closed-loop evaluation skipped: the dataset's policy {data.info.get('policy')!r} is not a built-in "
             "policy this command can run again (for a PPO policy: acn-ppo --eval POLICY --corrector DIR)")
@@ -614,7 +614,6 @@ def _rounds(model: Corrector, rows: Labelled, norm: Normaliser, sims, weights: n
     """Closed-loop rounds (``acn.models.rounds``); one report per round."""
     from acn.models.evaluate import one_step, summarise
     from acn.models.rounds import relabel, visit
-    from acn.toolkit.policies import POLICIES
 
     ccfg, source, target = sims
     if ccfg.policy not in POLICIES:

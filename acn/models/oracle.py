@@ -39,25 +39,22 @@ class _Oracle:
                  threads: int | None) -> None:
         self.target = Resimulator(target, target_sim, threads=threads)
         self.weights = np.asarray(weights, float)
+        self.effort_weights: np.ndarray | None = None  # 1 / N m per joint: match the goal's torque too
         self.solver = solver or SolveConfig()
         self.error_before: list[float] = []  # per corrected step, || W (goal - T(s, a)) ||^2
         self.error_after: list[float] = []   # ... with the oracle's action
 
-    def _goals(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
+    def _goals(self, states: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """(goal next states, the torque applied reaching them or None if unknown)."""
         raise NotImplementedError
-
-    def _goal_effort(self) -> tuple[np.ndarray | None, np.ndarray | None]:
-        """(torque to match, its weights) for the last goals, or (None, None)."""
-        return None, None
 
     def correct(self, state, action):
         """a~ = a + delta_a for one (43,) / (12,) row or a batch (N, 43) / (N, 12); numpy out."""
         s = np.asarray(state, float).reshape(-1, STATE_DIM)
         a = np.asarray(action, float).reshape(-1, ACTION_DIM)
-        goals = self._goals(s, a)
-        effort, effort_weights = self._goal_effort()
+        goals, effort = self._goals(s, a)
         sol = solve(self.target, s, a, goals, OUTPUT_INDEX, self.weights, self.solver, goal_effort=effort,
-                    effort_weights=effort_weights)
+                    effort_weights=self.effort_weights)
         self.error_before.extend(sol.error_before.tolist())
         self.error_after.extend(sol.error_after.tolist())
         return (a + sol.delta).reshape(np.shape(action))
@@ -75,17 +72,10 @@ class SameStateOracle(_Oracle):
         super().__init__(target, target_sim, weights, solver, threads)
         self.source = Resimulator(source, source_sim, threads=threads)
         self.effort_weights = None if effort_weights is None else np.broadcast_to(effort_weights, (ACTION_DIM,))
-        self._effort: np.ndarray | None = None
 
-    def _goals(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
+    def _goals(self, states: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         p = self.source.run(states, actions)
-        self._effort = p.effort[:, 0]
-        return p.state[:, 0]
-
-    def _goal_effort(self) -> tuple[np.ndarray | None, np.ndarray | None]:
-        if self.effort_weights is None:
-            return None, None
-        return self._effort, self.effort_weights
+        return p.state[:, 0], p.effort[:, 0]
 
     def close(self) -> None:
         super().close()
@@ -101,7 +91,7 @@ class TrackingOracle(_Oracle):
         super().__init__(target, target_sim, weights, solver, threads)
         self.goal = goal
 
-    def _goals(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
+    def _goals(self, states: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, None]:
         if self.goal is None:
             raise RuntimeError("TrackingOracle.goal is not bound to a source trajectory")
-        return np.asarray(self.goal(), float).reshape(len(states), STATE_DIM)
+        return np.asarray(self.goal(), float).reshape(len(states), STATE_DIM), None

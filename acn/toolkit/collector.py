@@ -81,20 +81,19 @@ class CollectConfig:
     @property
     def source_sim(self) -> SimConfig:
         """The source simulator's config: ``sim`` with the hidden effects written in."""
-        if not self.hidden_effects:
-            return self.sim
-        from acn.toolkit.effects import Model
-
-        return Model(self.source, list(self.hidden_effects)).sim_config(self.sim)
+        return self._with_effects(self.source, self.hidden_effects)
 
     @property
     def target_sim(self) -> SimConfig:
         """The target simulator's config: ``sim`` with the target effects written in."""
-        if not self.target_effects:
+        return self._with_effects(self.target, self.target_effects)
+
+    def _with_effects(self, backend: str | None, effects: list) -> SimConfig:
+        if not effects:
             return self.sim
         from acn.toolkit.effects import Model
 
-        return Model(self.target, list(self.target_effects)).sim_config(self.sim)
+        return Model(backend, list(effects)).sim_config(self.sim)
 
     @property
     def steps_per_episode(self) -> int:
@@ -238,13 +237,13 @@ class PairedRollout:
 LoadCorrector = Callable[[str], Any]  # config.corrector -> an object with correct(state, action)
 
 
-def rollout_for(config: CollectConfig, load_corrector: LoadCorrector | None = None, **kw) -> "PairedRollout":
+def rollout_for(config: CollectConfig, load_corrector: LoadCorrector | None = None) -> "PairedRollout":
     """A ``PairedRollout`` with ``config.corrector`` loaded by ``load_corrector`` (e.g.
     ``acn.models.Corrector.load``, passed down by the caller: worker processes and Ray tasks
-    build their own rollout and load the corrector there)."""
-    if config.corrector and load_corrector is None:
-        raise ValueError(f"config.corrector names {config.corrector!r} but no load_corrector was given")
-    return PairedRollout(config, corrector=load_corrector(config.corrector) if config.corrector else None, **kw)
+    build their own rollout and load the corrector there; without a loader PairedRollout refuses
+    a corrector label)."""
+    loaded = load_corrector(config.corrector) if config.corrector and load_corrector else None
+    return PairedRollout(config, corrector=loaded)
 
 
 def collect_episodes(config: CollectConfig, indices: list[int], load_corrector: LoadCorrector | None = None

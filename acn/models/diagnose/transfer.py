@@ -30,8 +30,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Callable
 
-import numpy as np
-
 from acn.datasets.measurements import Measurements
 from acn.errors import UserError
 from acn.toolkit.effects import Model
@@ -84,13 +82,10 @@ def closed_loop_models(dataset: str | Path, data: Measurements, side: str, befor
 
     from acn.models.acn import OUTPUT_CHANNELS
     from acn.models.corrector import Corrector
-    from acn.models.evaluate import run_episodes, run_oracles, summarise
-    from acn.toolkit.state import STATE_NAMES
+    from acn.models.evaluate import output_spread, run_episodes, run_oracles, summarise
 
     cfg = robot_config(dataset, data, side, before, episodes, seconds, corrector_dir)
-    index = [STATE_NAMES.index(c) for c in OUTPUT_CHANNELS]
-    spread = np.nanstd(data.next_state[:, index], axis=0)
-    spread = np.where(np.isfinite(spread) & (spread > 1e-9), spread, 1.0)
+    spread = output_spread(data.next_state)
     say = log or (lambda _: None)
     first = "as given" if before.corrector else "uncorrected"  # a model file may carry its own corrector
     runs, names = {}, {first: before.describe() + (f" + corrector {before.corrector}" if before.corrector else "")}
