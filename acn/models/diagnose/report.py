@@ -17,8 +17,8 @@ JSON keys (the machine-readable contract):
 - ``model`` and ``final_model``: the model files before and after;
 - ``closed_loop`` (with ``--closed-loop``, else null): the robot re-run beside the model from
   held-out initial states (``transfer``): ``runs`` by name (``uncorrected`` = the model as
-  given, ``corrected`` = with ``--corrector``, ``with effects`` = the final model, the
-  oracles), each with ``divergence``, ``divergence_by_group``, ``divergence_curve``,
+  given, or ``as given`` when its file carries a corrector; ``corrected`` = with
+  ``--corrector``, ``with effects`` = the final model, the oracles), each with ``divergence``, ``divergence_by_group``, ``divergence_curve``,
   ``eps_transfer``, ``target_falls``; ``models`` (what each run ran), ``robot``.
 """
 
