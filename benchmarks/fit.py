@@ -4,9 +4,10 @@ baseline_samples_per_s   the paper authors' loop: a per-sample torch Dataset of 
                          DataLoader (batch 256, shuffle), ActionNet + JacobianNet, their loss
                          (J delta_a by torch.bmm, autograd), Adam
 fit_samples_per_s        acn-fit's loop (acn.models.fit.train): tensors held whole, batches gathered
-                         into preallocated buffers, one flat parameter buffer with fused Adam, bf16
-                         weights where the CPU has native bf16 (fit_bf16=1), the loss's gradient
-                         written out
+                         into preallocated buffers, the networks' forward and backward written out on
+                         one flat parameter buffer (acn.models.backprop: the two first layers as one
+                         matmul, fused Adam), bf16 weights where the CPU has native bf16 (fit_bf16=1),
+                         the loss's gradient written out
 fit_speedup              their ratio (the baseline on torch's default threads, acn-fit's loop on
                          its default FitConfig.train_threads = 1); target >= 2.5
 fit_speedup_1_thread     the same with the baseline on one thread too (equal resources)

@@ -118,6 +118,43 @@ def test_acn_loss_gradient_is_autograds():
     assert torch.allclose(fit, plain) and torch.allclose(total, plain + 0.01 * d.abs().sum(1).mean())
 
 
+@pytest.mark.parametrize("variant,layers", [("paper", 2), ("inverse", 3)])
+def test_written_out_backprop_gives_autograds_gradients(variant, layers):
+    """FlatMLPs (both networks' first layers as one matmul, gradients written into one flat
+    buffer) gives autograd's loss and gradient for every parameter, in float32."""
+    import copy
+
+    from acn.models.acn import acn_loss
+    from acn.models.backprop import FlatMLPs
+    from acn.models.corrector import default_config
+
+    torch.manual_seed(0)
+    model = Corrector(default_config(variant, 24, layers))
+    for p in model.net.parameters():  # the output layer starts at zero: make every gradient non-trivial
+        torch.nn.init.normal_(p, std=0.3)
+    ref = copy.deepcopy(model.net)
+    x, r = torch.randn(20, model.net.action_net[0].in_features), torch.randn(20, 33)
+
+    def loss_of(out):
+        if len(out) == 2:
+            return acn_loss(out[0], out[1].view(-1, 33, 12), r, 0.01)[0]
+        return (out[0] - r[:, :12]).pow(2).mean()
+
+    delta_a, jac = ref(x)
+    expected = loss_of([delta_a] + ([jac.flatten(1)] if jac is not None else []))
+    expected.backward()
+    nets = [n for n in (model.net.action_net, model.net.jacobian_net) if n is not None]
+    flat = FlatMLPs(nets, torch.float32)
+    assert torch.allclose(flat.step(x, loss_of), expected.detach())
+    names = {id(p): n for n, p in model.net.named_parameters()}
+    grads = dict(ref.named_parameters())
+    assert len(flat.params) == len(grads)
+    for p, g in zip(flat.params, flat._views(flat.master.grad)):
+        assert torch.allclose(g, grads[names[id(p)]].grad, atol=1e-6), names[id(p)]
+    with pytest.raises(ValueError, match="Linear-SiLU"):
+        FlatMLPs([torch.nn.Sequential(torch.nn.Linear(3, 4), torch.nn.ReLU(), torch.nn.Linear(4, 2))], torch.float32)
+
+
 @pytest.mark.parametrize("precision", ["fp32", "bf16"])
 def test_training_leaves_separate_float32_parameters(precision, tmp_path):
     """Training uses one flat (bf16) buffer; afterwards each parameter is its own float32 tensor, the

@@ -47,6 +47,7 @@ from acn.atomic import move_into_place, temporary_beside
 from acn.datasets.reader import PairedTransitions, load_paired, percentile_filter
 from acn.errors import UserError
 from acn.models.acn import INPUT_CHANNELS, LABELLED, OUTPUT_CHANNELS, VARIANTS, acn_loss, input_channels, regression_loss
+from acn.models.backprop import FlatMLPs
 from acn.models.corrector import Corrector, default_config, torch_threads
 from acn.models.evaluate import output_spread
 from acn.models.labels import Solution, SolveConfig
@@ -305,46 +306,16 @@ def _batch_loss(delta_out: torch.Tensor, j_pred: torch.Tensor | None, batch: Spl
 def train(model: Corrector, tr: Split, cfg: FitConfig, on_epoch=None, epochs: int | None = None) -> list[dict]:
     """Adam on the variant's loss; batches are index slices of tensors held whole.
 
-    Speed (benchmarks/fit.py): batches are gathered into preallocated buffers; the parameters
-    are views of one flat buffer (``_FlatParameters``), so fused Adam updates one tensor; where
-    the hardware has native bf16, weights and inputs are held in bf16 for the matmuls (no
-    per-step autocast casts of each weight and gradient) while Adam updates a float32 master
-    copy and the loss is float32; the loss's gradient is written out (``acn.models.acn``).
+    Speed (benchmarks/fit.py): batches are gathered into preallocated buffers; the networks'
+    forward and backward are written out on one flat parameter buffer (``acn.models.backprop``:
+    the two networks' first layers as one matmul, fused Adam on one tensor); where the hardware
+    has native bf16, weights and inputs are held in bf16 for the matmuls while Adam updates a
+    float32 master copy and the loss is float32; the loss's gradient is written out
+    (``acn.models.acn``).
     """
     with torch_threads(cfg.train_threads if tr.x.device.type == "cpu" else None):
         cfg = cfg.resolved()
         return _train(model, tr, cfg, on_epoch, cfg.epochs if epochs is None else epochs)
-
-
-class _FlatParameters:
-    """Adam on one flat float32 master copy of the parameters (one optimiser tensor); the
-    network's parameters are views of one flat buffer in the training dtype (bf16: gradients and
-    weights cast once per step, as two whole buffers; float32: the master itself)."""
-
-    def __init__(self, params: list[torch.nn.Parameter], dtype: torch.dtype) -> None:
-        self.params = params
-        self.master = torch.cat([p.detach().reshape(-1) for p in params]).float()
-        self.master.grad = torch.empty_like(self.master)
-        self.work = self.master if dtype == torch.float32 else self.master.to(dtype)
-        for p, w in zip(params, self._views(self.work)):
-            p.data, p.grad = w, None
-
-    def _views(self, flat: torch.Tensor) -> list[torch.Tensor]:
-        return [v.view_as(p) for v, p in zip(flat.split([p.numel() for p in self.params]), self.params)]
-
-    def step(self, opt: torch.optim.Optimizer) -> None:
-        """Gather the gradients into the master's (one cast), Adam, weights back to the work buffer."""
-        torch.cat([p.grad.reshape(-1) for p in self.params], out=self.master.grad)
-        for p in self.params:
-            p.grad = None
-        opt.step()
-        if self.work is not self.master:
-            self.work.copy_(self.master)
-
-    def restore(self) -> None:
-        """Give each parameter its own float32 tensor again (the master's values)."""
-        for p, m in zip(self.params, self._views(self.master.detach())):
-            p.data, p.grad = m.clone(), None
 
 
 def _train(model: Corrector, tr: Split, cfg: FitConfig, on_epoch, epochs: int) -> list[dict]:
@@ -352,7 +323,7 @@ def _train(model: Corrector, tr: Split, cfg: FitConfig, on_epoch, epochs: int) -
     net.train()
     dev = tr.x.device
     dtype = torch.bfloat16 if cfg.use_bf16() else torch.float32
-    flat = _FlatParameters(list(net.parameters()), dtype)
+    flat = FlatMLPs([n for n in (net.action_net, net.jacobian_net) if n is not None], dtype)
     try:
         opt = torch.optim.Adam([flat.master], lr=cfg.lr, fused=True)
         gen = torch.Generator(device="cpu").manual_seed(cfg.seed)
@@ -370,13 +341,13 @@ def _train(model: Corrector, tr: Split, cfg: FitConfig, on_epoch, epochs: int) -
                 m = len(idx)
                 batch = replace(whole, **{k: torch.index_select(t, 0, idx, out=buffers[k][:m])
                                           for k, t in rows.items()})
-                delta_a, j_pred = net(batch.x)
-                loss, _ = _batch_loss(delta_a.float(), None if j_pred is None else j_pred.float(), batch, cfg)
-                loss.backward()
-                flat.step(opt)
+                loss = flat.step(batch.x, lambda out: _batch_loss(
+                    out[0], out[1].view(m, net.n_out, net.n_action) if len(out) > 1 else None, batch, cfg)[0])
+                opt.step()
+                flat.sync()
                 if sched is not None:
                     sched.step()
-                total.add_(loss.detach(), alpha=m)
+                total.add_(loss, alpha=m)
                 count += m
             history.append({"epoch": epoch + 1, "train_loss": float(total) / count})
             if on_epoch:

@@ -1,0 +1,131 @@
+"""The ACN's networks, forward and backward written out, on one flat parameter buffer.
+
+acn-fit's training step (``acn.models.fit.train``). The networks are small (a batch of 256 through
+52 -> 256 -> 256 -> 12 and -> 396 is ~0.4 GFLOP), so on a CPU a step through autograd spends as
+much time in its bookkeeping (graph nodes, gradient accumulation, one tensor per parameter, dtype
+casts of each weight and gradient) as in the matmuls. Here:
+
+- the parameters of every network are views of ONE flat buffer, laid out layer by layer, so the
+  networks' first layers, which read the same input, are one (n_nets * hidden x n_in) matrix and
+  run as one matmul (forward and weight gradient), and Adam updates one tensor;
+- weights and activations are held in the training dtype (bf16 where the hardware has it); the
+  gradients are written by ``torch.mm(..., out=)`` straight into a flat gradient buffer in that
+  dtype and cast to the float32 master once per step;
+- only the loss goes through autograd: it is evaluated on the networks' outputs (float32 leaves),
+  so every variant's loss (``acn.models.fit._batch_loss``) works unchanged.
+
+Only ``mlp`` networks (Linear, SiLU, ..., Linear) are handled; ``tests/test_fit.py`` checks the
+gradients against autograd's.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+
+def _linears(net: nn.Sequential) -> list[nn.Linear]:
+    mods = list(net)  # Linear, SiLU, Linear, ..., SiLU, Linear
+    if len(mods) < 3 or len(mods) % 2 == 0 or \
+            not all(isinstance(m, nn.SiLU if k % 2 else nn.Linear) for k, m in enumerate(mods)):
+        raise ValueError("backprop handles Linear-SiLU-...-Linear networks only")
+    return mods[::2]
+
+
+class FlatMLPs:
+    """Networks reading the same input, trained on one flat float32 master copy of their
+    parameters (``master``, the tensor Adam updates); ``step`` is one forward and backward."""
+
+    def __init__(self, nets: list[nn.Sequential], dtype: torch.dtype) -> None:
+        self.layers = [_linears(n) for n in nets]
+        depth = {len(ls) for ls in self.layers}
+        widths = {ls[0].out_features for ls in self.layers}
+        if len(depth) != 1 or len(widths) != 1:
+            raise ValueError("networks of equal depth and width only")
+        self.hidden = widths.pop()
+        # Layer-major order: layer l's weights of every network, then their biases.
+        self.params: list[nn.Parameter] = [
+            p for l in range(depth.pop()) for kind in ("weight", "bias") for ls in self.layers
+            for p in [getattr(ls[l], kind)]]
+        self.dtype = dtype
+        self.master = torch.cat([p.detach().reshape(-1) for p in self.params]).float()
+        self.master.grad = torch.empty_like(self.master)
+        self.work = self.master if dtype == torch.float32 else self.master.to(dtype)
+        self.grad = self.master.grad if dtype == torch.float32 else torch.empty_like(self.work)
+        views, grads = self._views(self.work), self._views(self.grad)
+        for p, w in zip(self.params, views):
+            p.data, p.grad = w, None
+        self.w = {id(p): v for p, v in zip(self.params, views)}
+        self.g = {id(p): v for p, v in zip(self.params, grads)}
+        first = [ls[0] for ls in self.layers]  # adjacent in the flat buffer: one matrix
+        n = len(first)
+        off_w = self._offset(first[0].weight)
+        off_b = self._offset(first[0].bias)
+        rows, cols = n * self.hidden, first[0].in_features
+        self.w0, self.g0 = (t[off_w:off_w + rows * cols].view(rows, cols) for t in (self.work, self.grad))
+        self.b0, self.gb0 = (t[off_b:off_b + rows] for t in (self.work, self.grad))
+
+    def _offset(self, p: nn.Parameter) -> int:
+        out = 0
+        for q in self.params:
+            if q is p:
+                return out
+            out += q.numel()
+        raise KeyError(p)
+
+    def _views(self, flat: torch.Tensor) -> list[torch.Tensor]:
+        return [v.view_as(p) for v, p in zip(flat.split([p.numel() for p in self.params]), self.params)]
+
+    def step(self, x: torch.Tensor, loss_of: Callable[[list[torch.Tensor]], torch.Tensor]) -> torch.Tensor:
+        """Forward ``x`` (rows x n_in, training dtype) through every network, ``loss_of`` on their
+        float32 outputs (autograd), backward into ``master.grad``; returns the loss."""
+        h0 = self.hidden
+        z0 = torch.addmm(self.b0, x, self.w0.t())        # all networks' first layers: one matmul
+        h = F.silu(z0)
+        inputs: list[list[torch.Tensor]] = []            # per network: each layer's input
+        pre: list[list[torch.Tensor]] = []               # per network: each hidden layer's pre-activation
+        outs = []
+        for i, ls in enumerate(self.layers):
+            hi, zi = h[:, i * h0:(i + 1) * h0], [z0[:, i * h0:(i + 1) * h0]]
+            acts = [x, hi]
+            for lin in ls[1:-1]:
+                zi.append(torch.addmm(self.w[id(lin.bias)], hi, self.w[id(lin.weight)].t()))
+                hi = F.silu(zi[-1])
+                acts.append(hi)
+            last = ls[-1]
+            outs.append(torch.addmm(self.w[id(last.bias)], hi, self.w[id(last.weight)].t()))
+            inputs.append(acts)
+            pre.append(zi)
+        leaves = [o.float().requires_grad_() for o in outs]
+        loss = loss_of(leaves)
+        loss.backward()
+        g_h0 = []                                        # per network: d loss / d first layer's output
+        for ls, acts, zi, leaf in zip(self.layers, inputs, pre, leaves):
+            g = leaf.grad.to(self.dtype)
+            for l in range(len(ls) - 1, 0, -1):
+                lin = ls[l]
+                torch.mm(g.t(), acts[l], out=self.g[id(lin.weight)])
+                torch.sum(g, 0, out=self.g[id(lin.bias)])
+                g = g @ self.w[id(lin.weight)]
+                if l > 1:
+                    g = torch.ops.aten.silu_backward(g, zi[l - 1])
+            g_h0.append(g)
+        g = torch.ops.aten.silu_backward(g_h0[0] if len(g_h0) == 1 else torch.cat(g_h0, 1), z0)
+        torch.mm(g.t(), x, out=self.g0)
+        torch.sum(g, 0, out=self.gb0)
+        if self.grad is not self.master.grad:
+            self.master.grad.copy_(self.grad)
+        return loss.detach()
+
+    def sync(self) -> None:
+        """Weights back from the master after an optimiser step."""
+        if self.work is not self.master:
+            self.work.copy_(self.master)
+
+    def restore(self) -> None:
+        """Give each parameter its own float32 tensor again (the master's values)."""
+        for p, m in zip(self.params, self._views(self.master.detach())):
+            p.data, p.grad = m.clone(), None
