@@ -47,9 +47,8 @@ class FlatMLPs:
             raise ValueError("networks of equal depth and width only")
         self.hidden = widths.pop()
         # Layer-major order: layer l's weights of every network, then their biases.
-        self.params: list[nn.Parameter] = [
-            p for l in range(depth.pop()) for kind in ("weight", "bias") for ls in self.layers
-            for p in [getattr(ls[l], kind)]]
+        self.params: list[nn.Parameter] = [getattr(ls[l], kind) for l in range(depth.pop())
+                                           for kind in ("weight", "bias") for ls in self.layers]
         self.dtype = dtype
         self.master = torch.cat([p.detach().reshape(-1) for p in self.params]).float()
         self.master.grad = torch.empty_like(self.master)
@@ -58,23 +57,13 @@ class FlatMLPs:
         views, grads = self._views(self.work), self._views(self.grad)
         for p, w in zip(self.params, views):
             p.data, p.grad = w, None
-        self.w = {id(p): v for p, v in zip(self.params, views)}
+        self.w = {id(p): v for p, v in zip(self.params, views)}  # weights and their gradients, by parameter
         self.g = {id(p): v for p, v in zip(self.params, grads)}
-        first = [ls[0] for ls in self.layers]  # adjacent in the flat buffer: one matrix
-        n = len(first)
-        off_w = self._offset(first[0].weight)
-        off_b = self._offset(first[0].bias)
-        rows, cols = n * self.hidden, first[0].in_features
-        self.w0, self.g0 = (t[off_w:off_w + rows * cols].view(rows, cols) for t in (self.work, self.grad))
-        self.b0, self.gb0 = (t[off_b:off_b + rows] for t in (self.work, self.grad))
-
-    def _offset(self, p: nn.Parameter) -> int:
-        out = 0
-        for q in self.params:
-            if q is p:
-                return out
-            out += q.numel()
-        raise KeyError(p)
+        # The first layers (the params' first len(nets) weights, then as many biases): one matrix.
+        n, n_in = len(nets), self.layers[0][0].in_features
+        w_end = n * self.hidden * n_in
+        self.w0, self.g0 = (t[:w_end].view(n * self.hidden, n_in) for t in (self.work, self.grad))
+        self.b0, self.gb0 = (t[w_end:w_end + n * self.hidden] for t in (self.work, self.grad))
 
     def _views(self, flat: torch.Tensor) -> list[torch.Tensor]:
         return [v.view_as(p) for v, p in zip(flat.split([p.numel() for p in self.params]), self.params)]
