@@ -1,0 +1,107 @@
+"""How much of the one-step same-state gap ANY corrector F(s, a) could learn from a paired dataset.
+
+The same-state oracle knows each held-out row's gap; a corrector sees only (s, a). Here the gap
+itself is regressed on (s, a): the weighted same-state residual W (s'_src - T_mujoco(s_src, a)) on
+the 33 output channels (W = 1 / the training spread, as acn-fit's labels and one-step error),
+labelled by the oracle's solve (``acn.models.fit.same_state_rows``), inputs the 33 dynamic state
+channels and the action, episodes split as acn-fit splits them. Two regressions, trained on the
+first quarter, half and all of the training episodes:
+
+- ``linear``: ridge regression (lambda 1 on standardised inputs);
+- ``mlp``: ``acn.models.acn.mlp`` (2 x 256, SiLU), Adam 1e-3, batch 128, 40 epochs; the BEST
+  held-out R^2 over the epochs is printed (chosen on the held-out rows themselves: optimistic).
+
+R^2 on held-out episodes is the share of the gap's variance a function of (s, a) learned from
+these rows reproduces: a ceiling for what a learned corrector can remove, where the oracle's
+share is a ceiling only for a corrector that knows the row. If it stays low and grows slowly
+with the data, the gap is not a function of (s, a) that these data pin down.
+
+Usage: python benchmarks/gap_predictability.py DATASET [DATASET ...]
+Prints name=value lines per dataset (its directory name as prefix).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from acn.datasets.reader import load_paired
+from acn.datasets.record import config_from_metadata
+from acn.models.acn import DYNAMIC_INPUT_CHANNELS, OUTPUT_CHANNELS, mlp
+from acn.models.evaluate import output_spread
+from acn.models.fit import FitConfig, same_state_rows, split_episodes
+from acn.toolkit.resim import Resimulator
+from acn.toolkit.state import GROUPS, STATE_NAMES
+
+
+def r2(pred: np.ndarray, y: np.ndarray, mean: np.ndarray) -> float:
+    """1 - SSE / SST over every channel, SST about the training mean."""
+    return float(1.0 - ((pred - y) ** 2).sum() / ((y - mean) ** 2).sum())
+
+
+def ridge(x_tr: np.ndarray, y_tr: np.ndarray, x: np.ndarray, lam: float = 1.0) -> np.ndarray:
+    z_tr, z = (np.c_[a, np.ones(len(a))] for a in (x_tr, x))
+    return z @ np.linalg.solve(z_tr.T @ z_tr + lam * np.eye(z.shape[1]), z_tr.T @ y_tr)
+
+
+def mlp_best(x_tr: np.ndarray, y_tr: np.ndarray, x_va: np.ndarray, y_va: np.ndarray, epochs: int = 40,
+             seed: int = 0) -> tuple[float, int]:
+    """(best held-out R^2, its epoch) of acn's MLP regressing y on x."""
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    net = mlp(x_tr.shape[1], 256, y_tr.shape[1])
+    opt = torch.optim.Adam(net.parameters(), lr=1e-3)
+    xt, yt, xv = (torch.tensor(a, dtype=torch.float32) for a in (x_tr, y_tr, x_va))
+    best = (-np.inf, 0)
+    for epoch in range(1, epochs + 1):
+        for b in np.array_split(rng.permutation(len(xt)), max(1, len(xt) // 128)):
+            loss = (net(xt[b]) - yt[b]).pow(2).mean()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+        with torch.no_grad():
+            score = r2(net(xv).numpy(), y_va, y_tr.mean(0))
+        best = max(best, (score, epoch))
+    return best
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("datasets", nargs="+")
+    args = ap.parse_args()
+    fit_cfg = FitConfig().resolved()
+    for path in args.datasets:
+        name = Path(path).name
+        data = load_paired([path])
+        is_val = split_episodes(data.episode, fit_cfg.val_fraction, fit_cfg.seed)
+        weights = 1.0 / output_spread(data.subset(~is_val).target_state)
+        cfg = config_from_metadata(data.info)
+        with Resimulator(cfg.target, cfg.sim) as resim:
+            rows = same_state_rows(data, resim, weights, fit_cfg.oracle_solver())
+        gap = rows.solution.residual * weights
+        x = np.c_[data.state[:, [STATE_NAMES.index(c) for c in DYNAMIC_INPUT_CHANNELS]], data.action]
+        ok = np.isfinite(gap).all(1) & ~rows.solution.diverged
+        va = ok & is_val
+        train_episodes = np.unique(data.episode[ok & ~is_val])
+        mean, std = x[ok & ~is_val].mean(0), x[ok & ~is_val].std(0) + 1e-9
+        x = (x - mean) / std
+        print(f"{name}_oracle_removed={1 - rows.solution.error_after[va].sum() / rows.solution.error_before[va].sum():.3f}")
+        for frac in (0.25, 0.5, 1.0):
+            tr = ok & np.isin(data.episode, train_episodes[: max(1, round(frac * len(train_episodes)))])
+            k = f"{name}_{int(frac * 100)}pct"
+            score, epoch = mlp_best(x[tr], gap[tr], x[va], gap[va])
+            print(f"{k}_train_rows={int(tr.sum())}")
+            print(f"{k}_gap_r2_linear={r2(ridge(x[tr], gap[tr], x[va]), gap[va], gap[tr].mean(0)):.3f}")
+            print(f"{k}_gap_r2_mlp={score:.3f}")
+            print(f"{k}_gap_r2_mlp_epoch={epoch}", flush=True)
+        total = (gap[va] ** 2).sum()
+        for g in ("base_linvel", "base_angvel", "joint_pos", "joint_vel"):
+            cols = [i for i, c in enumerate(OUTPUT_CHANNELS) if c in GROUPS[g]]
+            print(f"{name}_{g}_share_of_gap={(gap[va][:, cols] ** 2).sum() / total:.3f}")
+
+
+if __name__ == "__main__":
+    main()
