@@ -131,6 +131,25 @@ def test_noisy_nominal_log_is_none(noisy_logs):
     assert 0.5 < 1 - d.structured_share <= 1.0  # the error is mostly noise, and the report says so
 
 
+def test_effects_that_fit_the_noise_in_the_start_states_are_set_aside(tmp_path):
+    """A 100 Hz log with sensor noise and no effect: a dozen encoder offsets lower the one-step
+    error by a third (noisy joint readings press the feet into the ground on average), but make
+    the 25-step open-loop prediction worse; they are not named, and the verdict is none."""
+    from acn.datasets.importer import ImportConfig, import_log
+    from acn.models.diagnose.rank import one_step_only
+
+    write_log(tmp_path / "log.csv", LogSpec(noise=1.0, seed=7, control_hz=100, kp=40.0, kd=1.0, seconds=6.0,
+                                            episodes=3))
+    path, _ = import_log(tmp_path / "log.csv", tmp_path / "log", ImportConfig(100, 40.0, 1.0, 33.5))
+    cfg = DiagnoseConfig(horizons=(1, 25), compare_rows=300, rollout_starts=60, rank_rows=150, judge_rows=600,
+                         fit_rows=200, rank_iterations=2)
+    d = diagnose(load_measurements(path), Model.parse("mujoco"), cfg)
+    offsets = next(c for c in d.ranking if c.name == "encoder_offset")
+    assert offsets.judgement.significant and offsets.judgement.removed > 0.2  # what fooled the one-step judge
+    assert offsets.longer_gain < 0 and all(one_step_only(c) for c in d.ranking[d.ranking.index(offsets):])  # last
+    assert d.verdict == "none" and "encoder_offset improves the one-step prediction only" in d.reason, d.reason
+
+
 def test_noisy_log_from_another_controller_finds_the_latency(noisy_logs):
     d = diagnose(load_measurements(noisy_logs["latency"]), Model.parse("mujoco"), FAST, add=["actuator_latency"])
     assert d.ranking[0].name == "actuator_latency" and d.verdict == "effect", d.reason

@@ -6,7 +6,9 @@ held-out rows), refits on more rows, and compares the model before and after at 
 horizon. ``auto`` repeats rank -> add while the best plausible candidate's held-out
 improvement is larger than the noise (significant, ``rank.judge``) and removes at least 5 % of
 the error: after the right effects, a noisy log still lets armature or damping fit a few
-per cent of the contact bias that noise in joint readings leaves.
+per cent of the contact bias that noise in joint readings leaves. An effect whose final fit
+lowers the one-step error but not the open-loop error at the longest horizon is not added
+(``rank.one_step_only``); the next candidate is tried.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import numpy as np
 from acn.models.diagnose.compare import Comparison, compare
 from acn.models.diagnose.fitting import EffectFit, default_granularity, fit_effect, instrumental_refit, refittable
 from acn.models.diagnose.problem import DiagnoseConfig, Problem
-from acn.models.diagnose.rank import Candidate, Judgement, implausible, judge, rank
+from acn.models.diagnose.rank import Candidate, Judgement, doubt, implausible, judge, rank
 from acn.toolkit.effects import Model, get_effect
 
 AUTO_MIN_EXPLAINED = 0.05  # --auto stops when the best candidate explains less of what is left
@@ -78,14 +80,24 @@ def add_effect(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, j
     return Added(fit, judgement, before, compare(problem, fit.model, cfg))
 
 
+def longer_gain(step: Added) -> float | None:
+    """Share of the open-loop error at the longest compared horizon (> 1) the step removes."""
+    h = max(step.before.channel_error)
+    if h <= 1:
+        return None
+    before, after = (np.mean(c.channel_error[h] ** 2) for c in (step.before, step.after))
+    return 1.0 - float(after / before) if before > 0 else 0.0
+
+
 def auto(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows: np.ndarray, base_residual: np.ndarray,
          floor_mse: float, ranking: list[Candidate], progress=None) -> list[Added]:
     """Greedy rank -> add while the best candidate removes more than the noise."""
     added: list[Added] = []
+    noise_fits: set[str] = set()  # added, then found to improve the one step only
     current, residual = first, base_residual
     while len(added) < cfg.auto_max:
-        best = next((c for c in ranking if c.name not in {a.name for a in added}
-                     and c.judgement.significant and not implausible(c.fit)), None)
+        best = next((c for c in ranking if c.name not in {a.name for a in added} | noise_fits
+                     and c.judgement.significant and not doubt(c)), None)
         if best is None or best.judgement.explained(floor_mse) < AUTO_MIN_EXPLAINED \
                 or best.judgement.removed < AUTO_MIN_REMOVED:
             break
@@ -94,6 +106,9 @@ def auto(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows: n
         step = add_effect(problem, current.model, best.name, cfg, judge_rows, residual, current, start=best.fit)
         if not step.judgement.significant or implausible(step.fit):
             break
+        if longer_gain(step) is not None and longer_gain(step) <= 0:
+            noise_fits.add(best.name)  # rank.one_step_only, found on the refitted effect: try the next one
+            continue
         added.append(step)
         current, residual = step.after, step.judgement.residual_after
         if len(added) < cfg.auto_max:

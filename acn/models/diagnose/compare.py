@@ -57,9 +57,7 @@ def compare(problem: Problem, model: Model, cfg: DiagnoseConfig) -> Comparison:
     for h in cfg.horizons:
         if h == 1:
             continue
-        starts = problem.sample(np.intersect1d(problem.held_rows, problem.data.windows(h)), cfg.rollout_starts,
-                                salt=h)
-        r = problem.residual_of(sim, starts, h)
+        r = problem.residual_of(sim, problem.rollout_starts(h, cfg.rollout_starts), h)
         r = r[np.isfinite(r).all(1)]
         error[h] = group_errors(problem, r)
         channel_error[h] = np.sqrt(np.mean(r ** 2, axis=0))

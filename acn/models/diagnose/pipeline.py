@@ -28,7 +28,7 @@ from acn.datasets.measurements import Measurements
 from acn.models.diagnose.add import Added, add_effect, auto
 from acn.models.diagnose.compare import Comparison, compare, floor_of
 from acn.models.diagnose.problem import DiagnoseConfig, Problem, prepare
-from acn.models.diagnose.rank import STRUCTURED_SHARE, Candidate, explained_share, implausible, rank
+from acn.models.diagnose.rank import STRUCTURED_SHARE, Candidate, doubt, explained_share, one_step_only, rank
 from acn.models.diagnose.where import breakdown
 from acn.toolkit.effects import Model, get_effect
 
@@ -77,11 +77,11 @@ def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Cand
         names = " + ".join(a.name for a in added)
         if share >= EFFECT_SHARE:
             return "effect", f"{names} explain {share:.0%} of the error above the noise floor"
-    plausible = [c for c in ranking if c.judgement.significant and not implausible(c.fit)]
+    plausible = [c for c in ranking if c.judgement.significant and not doubt(c)]
     top = plausible[0] if plausible else None
     if top is not None and top.judgement.explained(floor_mse) >= EFFECT_SHARE:
         skipped = [c.name for c in ranking[: ranking.index(top)]]
-        also = f"; ranked above it but implausible: {', '.join(skipped)}" if skipped else ""
+        also = f"; ranked above it but set aside: {', '.join(skipped)}" if skipped else ""
         return "effect", (f"{top.name} explains {top.judgement.explained(floor_mse):.0%} of the error above the noise "
                           f"floor (held-out improvement {top.judgement.z:.1f} standard errors){also}")
     best = ranking[0] if ranking else None
@@ -89,11 +89,27 @@ def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Cand
         why = ("no candidate improves held-out predictions significantly" if best is None
                or not best.judgement.significant else
                f"the best plausible candidate, {top.name}, explains only {top.judgement.explained(floor_mse):.0%} of it"
-               if top is not None else f"the best candidate, {best.name}, {implausible(best.fit)}")
+               if top is not None else f"the best candidate, {best.name}, {doubt(best)}")
         return "unexplained", f"{structured:.0%} of the error is structured (above the noise floor); {why}"
     extra = f"; the best candidate, {best.name}, removes {best.judgement.removed:.1%} of it" if best else ""
+    noise = [c.name for c in ranking if one_step_only(c)]
+    if noise:
+        extra += f" ({', '.join(noise)} {one_step_only(next(c for c in ranking if one_step_only(c)))})"
     return "none", (f"the model matches within the noise: only {max(structured, 0):.0%} of the error is predictable "
                     f"from the state and actions and no plausible effect explains it{extra}")
+
+
+def noise_fitted(floor: np.ndarray, residual: np.ndarray, ranking: list[Candidate]) -> np.ndarray:
+    """The floor (C,) raised by what a candidate that improves the one step only removes per
+    channel (``rank.one_step_only``): that part of the error is caused by the sensor noise in the
+    start states too, though the library regressions predict it (it depends on the true state)."""
+    fits = [c for c in ranking if one_step_only(c)]
+    if not fits:
+        return floor
+    before = np.mean(residual ** 2, axis=0)
+    removed = max((np.clip(before - np.mean(c.judgement.residual_after ** 2, axis=0), 0.0, None) for c in fits),
+                  key=np.sum)
+    return np.minimum(before, floor + removed)
 
 
 def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None, add: list[str] = (),
@@ -120,8 +136,8 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
     # or of what the best candidates leave (after the right effect, only noise is left).
     floors = [floor_of(problem, model, judge_rows, residual)]
     floors += [floor_of(problem, c.fit.model, judge_rows, c.judgement.residual_after)
-               for c in ranking[:FLOOR_CANDIDATES] if c.judgement.significant]
-    floor = min(floors, key=lambda f: float(np.mean(f)))
+               for c in ranking[:FLOOR_CANDIDATES] if c.judgement.significant and not one_step_only(c)]
+    floor = noise_fitted(min(floors, key=lambda f: float(np.mean(f))), residual, ranking)
     floor_mse = float(np.mean(floor))
     t2 = time.perf_counter()
     added: list[Added] = []

@@ -99,6 +99,11 @@ class Problem:
     def residual_of(self, configs, rows: np.ndarray, horizon: int = 1, model_of_row=None) -> np.ndarray:
         return self.residual(self.predict(configs, rows, horizon, model_of_row), rows, horizon)
 
+    def rollout_starts(self, horizon: int, count: int) -> np.ndarray:
+        """Held-out rows that start ``horizon`` consecutive steps (at most ``count``; the same
+        rows for every model, so errors at that horizon compare pairwise)."""
+        return self.sample(np.intersect1d(self.held_rows, self.data.windows(horizon)), count, salt=horizon)
+
     def sample(self, rows: np.ndarray, count: int, salt: int = 0) -> np.ndarray:
         """At most ``count`` of ``rows``, spread evenly over them (deterministic)."""
         if len(rows) <= count:

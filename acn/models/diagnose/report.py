@@ -11,7 +11,9 @@ JSON keys (the machine-readable contract):
   ``free_parameters`` (``value``, ``stderr`` and ``identified`` each: false when the standard
   error exceeds half the largest realistic magnitude, ``rank.unidentified``), ``explained``
   (share 0..1 of the error above the noise floor), ``removed`` (share of the whole error),
-  ``z``, ``significant``, ``score``;
+  ``z``, ``significant``, ``score``, ``implausible`` (why it cannot be the explanation, "" if it
+  can: ``rank.doubt``), ``longest_horizon_removed`` (share of the open-loop error at the
+  longest horizon it removes; null where not checked: ``rank.screen``);
 - ``added`` (with ``--add`` / ``--auto``): in order, ``name``, ``params``, ``error_before`` and
   ``error_after`` (horizon -> group), ``headline_before``, ``headline_after``, ``explained``;
 - ``model`` and ``final_model``: the model files before and after;
@@ -33,7 +35,7 @@ import numpy as np
 from acn.models.diagnose.add import Added
 from acn.models.diagnose.compare import Comparison, group_errors
 from acn.models.diagnose.pipeline import Diagnosis
-from acn.models.diagnose.rank import Candidate, implausible, unidentified
+from acn.models.diagnose.rank import Candidate, doubt, unidentified
 from acn.models.diagnose.transfer import table as closed_loop_table
 
 HEADLINE = ("one-step teacher-forced prediction error on held-out rows: RMS over every compared channel of "
@@ -64,12 +66,18 @@ def _params_text(fit, most: int = 4) -> str:
     return ", ".join(f"{f['name']}={f['value']:.4g} +- {f['stderr']:.2g}" for f in free)
 
 
+def _longer(c: Candidate) -> str:
+    """The candidate's share of the longest-horizon open-loop error removed ("" if not checked)."""
+    return "" if c.longer_gain is None else f"{c.longer_gain:+.0%}"
+
+
 def _candidate(c: Candidate, floor_mse: float) -> dict:
     j = c.judgement
     return {"name": c.name, "params": c.fit.effect.to_json(c.fit.values), "granularity": c.fit.granularity,
             "free_parameters": _free(c.fit), "explained": round(j.explained(floor_mse), 4),
             "removed": round(j.removed, 4), "z": round(j.z, 2), "significant": j.significant,
-            "implausible": implausible(c.fit), "score": round(c.score, 4)}
+            "implausible": doubt(c), "score": round(c.score, 4),
+            "longest_horizon_removed": None if c.longer_gain is None else round(c.longer_gain, 4)}
 
 
 def _added(a: Added, floor_mse: float) -> dict:
@@ -148,8 +156,10 @@ def terminal(d: Diagnosis) -> str:
         j = c.judgement
         params = _params_text(c.fit)
         rows.append([c.name, c.fit.granularity, f"{j.explained(d.floor_mse):.0%}", f"{j.removed:+.1%}", f"{j.z:.1f}",
-                     "yes" if j.significant else "no", params])
-    out.append(_table(["effect", "fitted as", "explained", "error removed", "z", "significant", "parameters"], rows))
+                     "yes" if j.significant else "no", _longer(c), params])
+    out.append(_table(["effect", "fitted as", "explained", "error removed", "z", "significant",
+                       f"{max(d.before.error)}-step removed", "parameters"], rows))
+    out += [f"set aside: {c.name} {doubt(c)}" for c in d.ranking if c.judgement.significant and doubt(c)]
     for a in d.added:
         out += ["", f"added {a.name} ({a.fit.granularity}): {a.fit.effect.to_json(a.fit.values)}"]
         out += [t for t in [_unidentified_text(a.fit)] if t]
@@ -223,8 +233,9 @@ def write_html(d: Diagnosis, path: str | Path) -> Path:
                  f"</tr>{loop_rows}</table>") if loop else ""
     ranking = "".join(
         f"<tr><td>{c.name}</td><td>{c.fit.granularity}</td><td>{c.judgement.explained(d.floor_mse):.0%}</td>"
-        f"<td>{c.judgement.removed:+.1%}</td><td>{c.judgement.z:.1f}</td>"
-        f"<td>{html.escape(_params_text(c.fit))}</td></tr>" for c in d.ranking)
+        f"<td>{c.judgement.removed:+.1%}</td><td>{c.judgement.z:.1f}</td><td>{_longer(c)}</td>"
+        f"<td>{html.escape(_params_text(c.fit))}</td><td>{html.escape(doubt(c) if c.judgement.significant else '')}</td>"
+        "</tr>" for c in d.ranking)
     added = "".join(f"<li><b>{a.name}</b> ({a.fit.granularity}) {html.escape(_params_text(a.fit))}: headline "
                     f"{a.before.headline:.4f} &rarr; {a.after.headline:.4f}"
                     f"{'<br><i>' + html.escape(_unidentified_text(a.fit)) + '</i>' if unidentified(a.fit) else ''}</li>"
@@ -238,7 +249,7 @@ td,th{{border:1px solid #ccc;padding:4px 8px}}</style></head><body>
 ({html.escape(HEADLINE)}). Noise floor: {1 - d.structured_share:.0%} of the error.</p>
 <p><b>Where:</b> {html.escape(d.where['summary'])}</p>
 <h2>Candidate effects</h2><table><tr><th>effect</th><th>fitted as</th><th>explained</th><th>error removed</th><th>z</th>
-<th>parameters</th></tr>{ranking}</table>
+<th>{max(d.before.error)}-step error removed</th><th>parameters</th><th>set aside because</th></tr>{ranking}</table>
 {'<h2>Added</h2><ul>' + added + '</ul>' if added else ''}
 {loop_html}
 <h2>Plots</h2>{''.join(parts)}</body></html>"""
