@@ -92,9 +92,9 @@ def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Cand
                if top is not None else f"the best candidate, {best.name}, {doubt(best)}")
         return "unexplained", f"{structured:.0%} of the error is structured (above the noise floor); {why}"
     extra = f"; the best candidate, {best.name}, removes {best.judgement.removed:.1%} of it" if best else ""
-    noise = [c.name for c in ranking if one_step_only(c)]
+    noise = [c for c in ranking if one_step_only(c)]
     if noise:
-        extra += f" ({', '.join(noise)} {one_step_only(next(c for c in ranking if one_step_only(c)))})"
+        extra += f"; {noise[0].name} {one_step_only(noise[0])}"
     return "none", (f"the model matches within the noise: only {max(structured, 0):.0%} of the error is predictable "
                     f"from the state and actions and no plausible effect explains it{extra}")
 

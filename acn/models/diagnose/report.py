@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from acn.models.diagnose.add import Added
+from acn.models.diagnose.add import Added, longer_gain
 from acn.models.diagnose.compare import Comparison, group_errors
 from acn.models.diagnose.pipeline import Diagnosis
 from acn.models.diagnose.rank import Candidate, doubt, unidentified
@@ -50,6 +50,15 @@ def _free(fit) -> list[dict]:
     loose = set(unidentified(fit))
     return [{"name": n, "value": float(v), "stderr": float(e), "identified": n not in loose}
             for n, v, e in zip(fit.names, fit.x, fit.stderr)]
+
+
+def _noise_fit_text(a: Added) -> str:
+    """A warning when an added effect (``--add``) lowers the one-step error only ("" otherwise)."""
+    g = longer_gain(a)
+    if g is None or g > 0:
+        return ""
+    return (f"it raises the open-loop error at the longest horizon ({-g:+.0%}): it may fit what sensor noise in "
+            "the measured start states does rather than a physical effect")
 
 
 def _unidentified_text(fit) -> str:
@@ -162,7 +171,7 @@ def terminal(d: Diagnosis) -> str:
     out += [f"set aside: {c.name} {doubt(c)}" for c in d.ranking if c.judgement.significant and doubt(c)]
     for a in d.added:
         out += ["", f"added {a.name} ({a.fit.granularity}): {a.fit.effect.to_json(a.fit.values)}"]
-        out += [t for t in [_unidentified_text(a.fit)] if t]
+        out += [t for t in [_unidentified_text(a.fit), _noise_fit_text(a)] if t]
         out += [f"headline {a.before.headline:.4f} -> {a.after.headline:.4f}", error_table(a.before, a.after)]
     out += ["", f"verdict: {d.verdict} ({d.reason})"]
     if d.closed_loop:
@@ -238,7 +247,8 @@ def write_html(d: Diagnosis, path: str | Path) -> Path:
         "</tr>" for c in d.ranking)
     added = "".join(f"<li><b>{a.name}</b> ({a.fit.granularity}) {html.escape(_params_text(a.fit))}: headline "
                     f"{a.before.headline:.4f} &rarr; {a.after.headline:.4f}"
-                    f"{'<br><i>' + html.escape(_unidentified_text(a.fit)) + '</i>' if unidentified(a.fit) else ''}</li>"
+                    + "".join(f"<br><i>{html.escape(t)}</i>" for t in (_unidentified_text(a.fit), _noise_fit_text(a)) if t)
+                    + "</li>"
                     for a in d.added)
     body = f"""<!doctype html><html><head><meta charset="utf-8"><title>acn-diagnose: {html.escape(d.measurements)}</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
