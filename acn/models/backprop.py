@@ -75,10 +75,10 @@ class FlatMLPs:
         z0 = torch.addmm(self.b0, x, self.w0.t())        # all networks' first layers: one matmul
         h = F.silu(z0)
         inputs: list[list[torch.Tensor]] = []            # per network: each layer's input
-        pre: list[list[torch.Tensor]] = []               # per network: each hidden layer's pre-activation
+        pre: list[list] = []                             # per network: each hidden layer's pre-activation
         outs = []
         for i, ls in enumerate(self.layers):
-            hi, zi = h[:, i * h0:(i + 1) * h0], [z0[:, i * h0:(i + 1) * h0]]
+            hi, zi = h[:, i * h0:(i + 1) * h0], [None]  # layer 0's pre-activation: z0, all networks
             acts = [x, hi]
             for lin in ls[1:-1]:
                 zi.append(torch.addmm(self.w[id(lin.bias)], hi, self.w[id(lin.weight)].t()))

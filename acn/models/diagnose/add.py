@@ -20,7 +20,7 @@ import numpy as np
 from acn.models.diagnose.compare import Comparison, compare
 from acn.models.diagnose.fitting import EffectFit, default_granularity, fit_effect, instrumental_refit, refittable
 from acn.models.diagnose.problem import DiagnoseConfig, Problem
-from acn.models.diagnose.rank import Candidate, Judgement, doubt, implausible, judge, rank
+from acn.models.diagnose.rank import Candidate, Judgement, doubt, fits_noise, implausible, judge, rank
 from acn.toolkit.effects import Model, get_effect
 
 AUTO_MIN_EXPLAINED = 0.05  # --auto stops when the best candidate explains less of what is left
@@ -106,7 +106,7 @@ def auto(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows: n
         step = add_effect(problem, current.model, best.name, cfg, judge_rows, residual, current, start=best.fit)
         if not step.judgement.significant or implausible(step.fit):
             break
-        if longer_gain(step) is not None and longer_gain(step) <= 0:
+        if fits_noise(longer_gain(step)):
             noise_fits.add(best.name)  # rank.one_step_only, found on the refitted effect: try the next one
             continue
         added.append(step)

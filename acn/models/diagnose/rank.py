@@ -149,9 +149,15 @@ class Candidate:
         return self.fit.effect.name
 
 
+def fits_noise(longer_gain: float | None) -> bool:
+    """Whether an effect with this share of the longest-horizon open-loop error removed (None:
+    not checked) fits the noise in the measured start states: it does not lower that error."""
+    return longer_gain is not None and longer_gain <= 0
+
+
 def one_step_only(c: Candidate) -> str:
     """Why ``c`` is fitting the noise in the measured start states ("" if it is not, or unchecked)."""
-    if c.longer_gain is None or c.longer_gain > 0:
+    if not fits_noise(c.longer_gain):
         return ""
     return (f"improves the one-step prediction only (open-loop error at the longest horizon {-c.longer_gain:+.0%}): "
             "it fits what sensor noise in the measured start states does")

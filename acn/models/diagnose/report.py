@@ -35,7 +35,7 @@ import numpy as np
 from acn.models.diagnose.add import Added, longer_gain
 from acn.models.diagnose.compare import Comparison, group_errors
 from acn.models.diagnose.pipeline import Diagnosis
-from acn.models.diagnose.rank import Candidate, doubt, unidentified
+from acn.models.diagnose.rank import Candidate, doubt, fits_noise, unidentified
 from acn.models.diagnose.transfer import table as closed_loop_table
 
 HEADLINE = ("one-step teacher-forced prediction error on held-out rows: RMS over every compared channel of "
@@ -55,7 +55,7 @@ def _free(fit) -> list[dict]:
 def _noise_fit_text(a: Added) -> str:
     """A warning when an added effect (``--add``) lowers the one-step error only ("" otherwise)."""
     g = longer_gain(a)
-    if g is None or g > 0:
+    if not fits_noise(g):
         return ""
     return (f"it raises the open-loop error at the longest horizon ({-g:+.0%}): it may fit what sensor noise in "
             "the measured start states does rather than a physical effect")
