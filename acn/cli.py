@@ -476,6 +476,9 @@ def import_parser() -> argparse.ArgumentParser:
                    '"scale": 0.0174533, "offset": 0.0}}')
     p.add_argument("--dt-tolerance", type=_positive_float, default=0.1,
                    help="a time step may differ from the control period by this fraction before the episode is split")
+    p.add_argument("--linvel-frame", choices=("body", "world"), default="body",
+                   help="the frame the log's base_linvel_* are in (world: rotated into the body frame the schema uses)")
+    p.add_argument("--angvel-frame", choices=("body", "world"), default="body", help="the same for base_angvel_*")
     p.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
     return p
 
@@ -489,13 +492,19 @@ def import_main(argv: list[str] | None = None) -> int:
         if args.out.exists() and not args.overwrite:
             raise UserError(f"output directory {args.out} exists (use --overwrite to replace it)")
         cfg = ImportConfig(control_hz=args.control_hz, kp=args.kp, kd=args.kd, torque_limit=args.torque_limit,
-                           action_mode=args.action_mode, physics_hz=args.physics_hz, dt_tolerance=args.dt_tolerance)
+                           action_mode=args.action_mode, physics_hz=args.physics_hz, dt_tolerance=args.dt_tolerance,
+                           linvel_frame=args.linvel_frame, angvel_frame=args.angvel_frame)
         path, r = import_log(args.log, args.out, cfg, args.map_file, overwrite=args.overwrite)
         print(f"read {r.rows} rows: {r.transitions} transitions in {r.episodes} episode(s); cut {r.cut_nonfinite} "
               f"row(s) with non-finite values, split at {r.time_breaks} wrong time step(s), dropped "
               f"{r.dropped_short} one-row segment(s)")
         if r.missing:
             print(f"not in the log (stored as NaN, not compared): {', '.join(r.missing)}")
+        for f in r.findings:
+            print(f"check ({f.check}): {f.message}")
+        if r.findings:
+            print(f"{len(r.findings)} consistency finding(s): a model compared with these data would explain them as "
+                  "physics; fix the map and import again, or diagnose knowing them")
         print(f"wrote {path}; diagnose it: acn-diagnose {path} --model mujoco")
         return 0
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import subprocess
 import tempfile
 
 import pytest
@@ -45,6 +46,22 @@ def small_dataset(tmp_path_factory, small_config):
     from acn.datasets.record import record
 
     return record(small_config, tmp_path_factory.mktemp("data") / "paired")
+
+
+@pytest.fixture
+def acn(capsys):
+    """Run an acn command line in this process: (exit status, stdout, stderr)."""
+    import acn.cli
+
+    def run(tool: str, *args: str) -> subprocess.CompletedProcess:
+        try:
+            code = getattr(acn.cli, f"{tool}_main")(list(args))
+        except SystemExit as e:  # argparse's own errors
+            code = e.code
+        out = capsys.readouterr()
+        return subprocess.CompletedProcess(args, code, out.out, out.err)
+
+    return run
 
 
 def load(root):

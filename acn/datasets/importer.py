@@ -3,7 +3,10 @@
 The log has one row per control step: ``episode_index`` (optional, default 0), ``timestamp``
 (s), state channels named as in ``acn.toolkit.state`` (``base_pos_x``, ..., ``FR_hip_pos``,
 ..., ``imu_acc_z``), actions as ``action.<joint>`` and, if logged, applied torques as
-``effort.<joint>``. A map file renames and scales other columns onto these names:
+``effort.<joint>``. The trunk's orientation may come as a quaternion instead of Euler angles
+(``base_quat_w``, ``base_quat_x``, ``base_quat_y``, ``base_quat_z``), its velocities in the world
+frame instead of the body frame (``ImportConfig.linvel_frame`` / ``angvel_frame``): both are
+converted. A map file renames and scales other columns onto these names:
 
     {"FR_hip_pos": "q0", "FR_thigh_pos": {"column": "q1_deg", "scale": 0.0174533, "offset": 0.0}}
 
@@ -13,7 +16,12 @@ metadata (``missing_channels``); joint positions and actions are the minimum.
 Transitions: s_{t+1} is the next row of the same episode. A row with a non-finite value, or a
 time step that differs from the control period by more than ``dt_tolerance`` of it, ends a
 segment: the episode is split there (never bridged), and the cut rows and splits are counted.
-Each segment of n rows gives n - 1 transitions and becomes one dataset episode.
+Each segment of n rows gives n - 1 transitions and becomes one dataset episode. A log whose
+median time step is not the control period is refused (timestamps in ms, a wrong rate).
+
+The written episodes are checked for consistency (``acn.datasets.checks``: units, signs,
+frames, conventions); the findings are returned, and recorded in the metadata
+(``acn.import.checks``).
 """
 
 from __future__ import annotations
@@ -23,17 +31,20 @@ from pathlib import Path
 
 import numpy as np
 
-from acn.datasets import schema
+from acn.datasets import checks, schema
 from acn.errors import UserError
 from acn.jsonfile import read_json
 from acn.toolkit.collector import FALL_RULE, Episode, Trace, fallen
 from acn.toolkit.robot import ModelParams
-from acn.toolkit.state import ACTION_NAMES, GROUPS, STATE_NAMES
+from acn.toolkit.rotations import quat_to_rpy, rpy_to_matrices
+from acn.toolkit.state import ACTION_NAMES, GROUPS, SLICES, STATE_NAMES
 
 ACTION_COLUMNS = tuple(f"action.{j}" for j in ACTION_NAMES)
 EFFORT_COLUMNS = tuple(f"effort.{j}" for j in ACTION_NAMES)
+QUAT_COLUMNS = ("base_quat_w", "base_quat_x", "base_quat_y", "base_quat_z")  # the trunk's orientation, world
 INDEX_COLUMNS = ("episode_index", "timestamp")
-KNOWN_COLUMNS = (*INDEX_COLUMNS, *STATE_NAMES, *ACTION_COLUMNS, *EFFORT_COLUMNS)
+KNOWN_COLUMNS = (*INDEX_COLUMNS, *STATE_NAMES, *QUAT_COLUMNS, *ACTION_COLUMNS, *EFFORT_COLUMNS)
+FRAMES = ("body", "world")
 MAP_ENTRY_KEYS = ("column", "scale", "offset")
 
 
@@ -48,6 +59,8 @@ class ImportConfig:
     action_mode: str = "position"
     physics_hz: int = 1000
     dt_tolerance: float = 0.1  # fraction of the control period a time step may deviate
+    linvel_frame: str = "body"  # the frame the log's base_linvel is in (world: rotated into the body frame)
+    angvel_frame: str = "body"  # the same for base_angvel
 
 
 @dataclass
@@ -59,6 +72,7 @@ class ImportReport:
     time_breaks: int
     dropped_short: int
     missing: list[str]
+    findings: list[checks.Finding]
 
 
 def read_table(path: Path) -> dict[str, np.ndarray]:
@@ -146,7 +160,10 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
     log = Path(log)
     if cfg.physics_hz % cfg.control_hz:
         raise UserError(f"--physics-hz ({cfg.physics_hz}) must be a multiple of --control-hz ({cfg.control_hz})")
-    cols = resolve_columns(read_table(log), read_map(Path(map_path) if map_path else None))
+    for name, frame in (("--linvel-frame", cfg.linvel_frame), ("--angvel-frame", cfg.angvel_frame)):
+        if frame not in FRAMES:
+            raise UserError(f"{name} must be one of {', '.join(FRAMES)}, got {frame!r}")
+    cols = _orientation(resolve_columns(read_table(log), read_map(Path(map_path) if map_path else None)))
     n = len(next(iter(cols.values()))) if cols else 0
     if "timestamp" not in cols:
         raise UserError(f"{log} has no timestamp column (s); map one with --map")
@@ -158,7 +175,7 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
     if n < 2:
         raise UserError(f"{log} has fewer than 2 rows")
     missing = [c for c in STATE_NAMES if c not in cols]
-    state = np.column_stack([cols.get(c, np.full(n, np.nan)) for c in STATE_NAMES])
+    state = _to_body_frame(np.column_stack([cols.get(c, np.full(n, np.nan)) for c in STATE_NAMES]), cfg)
     action = np.column_stack([cols[c] for c in ACTION_COLUMNS])
     has_effort = all(c in cols for c in EFFORT_COLUMNS)
     effort = np.column_stack([cols[c] for c in EFFORT_COLUMNS]) if has_effort else np.full((n, 12), np.nan)
@@ -171,6 +188,7 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
         good &= np.isfinite(effort).all(1)
 
     period = 1.0 / cfg.control_hz
+    _check_time_step(episode, timestamp, period, cfg.dt_tolerance)
     meta = {
         "format_version": schema.FORMAT_VERSION, "paired": False,
         "source": {"simulator": "log", "version": None, "file": log.name}, "target": None,
@@ -184,6 +202,7 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
                            overwrite=overwrite)
     dropped = transitions = 0
     reasons: dict[str, int] = {}
+    written: list[checks.Episode] = []
     try:
         for rows, reason in _segments(episode, timestamp, good, period, cfg.dt_tolerance):
             reasons[reason] = reasons.get(reason, 0) + 1
@@ -191,16 +210,20 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
                 dropped += 1
                 continue
             now, nxt = rows[:-1], rows[1:]
+            written.append((state[rows], action[now]))
             trace = Trace(state[now], action[now], effort[now], state[nxt],
                           np.array([_fallen(s) for s in state[nxt]], dtype=bool))
             writer.write(Episode(writer.num_episodes, timestamp[now] - timestamp[now[0]], trace, None, reason))
             transitions += len(now)
         report = ImportReport(rows=n, transitions=transitions, episodes=writer.num_episodes,
                               cut_nonfinite=int((~good).sum()), time_breaks=reasons.get("split_time_gap", 0),
-                              dropped_short=dropped, missing=missing)
+                              dropped_short=dropped, missing=missing,
+                              findings=checks.check(written, period, cfg.action_mode))
         writer.meta.info[schema.ACN_KEY]["import"] = {"file": log.name, "rows": n, "transitions": transitions,
                           "rows_cut_nonfinite": report.cut_nonfinite, "time_step_breaks": report.time_breaks,
-                          "segments_too_short": dropped, "dt_tolerance": cfg.dt_tolerance}
+                          "segments_too_short": dropped, "dt_tolerance": cfg.dt_tolerance,
+                          "linvel_frame": cfg.linvel_frame, "angvel_frame": cfg.angvel_frame,
+                          "checks": [f.to_json() for f in report.findings]}
         if writer.num_episodes == 0:
             raise UserError(f"{log}: no two consecutive good rows at {cfg.control_hz} Hz: nothing to import "
                             f"({report.cut_nonfinite} non-finite rows, {report.time_breaks} time-step breaks)")
@@ -209,6 +232,59 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
         writer.abort()
         raise
     return path, report
+
+
+def _orientation(cols: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Euler angles from a quaternion where the log has one (``QUAT_COLUMNS``) instead."""
+    quat = [c for c in QUAT_COLUMNS if c in cols]
+    if not quat:
+        return cols
+    if len(quat) < 4:
+        raise UserError(f"a quaternion needs all of {', '.join(QUAT_COLUMNS)}; the log has only {', '.join(quat)}")
+    if any(c in cols for c in GROUPS["base_rpy"]):
+        raise UserError("the log has both Euler angles (base_roll, ...) and a quaternion (base_quat_*): give one")
+    w, x, y, z = (cols[c] for c in QUAT_COLUMNS)
+    norm = np.sqrt(w * w + x * x + y * y + z * z)
+    med = float(np.nanmedian(norm)) if np.isfinite(norm).any() else float("nan")
+    if not abs(med - 1.0) <= 0.1:
+        raise UserError(f"base_quat_* is not a unit quaternion (median norm {med:.3g}): are the right columns mapped?")
+    out = {k: v for k, v in cols.items() if k not in QUAT_COLUMNS}
+    for name, values in zip(GROUPS["base_rpy"], quat_to_rpy(np.stack([x, y, z, w]) / norm)):
+        out[name] = values
+    return out
+
+
+def _to_body_frame(state: np.ndarray, cfg: ImportConfig) -> np.ndarray:
+    """The trunk's velocities rotated from the world frame into the body frame, where the log has
+    them in the world frame (``cfg.linvel_frame`` / ``angvel_frame``)."""
+    groups = [g for g, frame in (("base_linvel", cfg.linvel_frame), ("base_angvel", cfg.angvel_frame))
+              if frame == "world"]
+    if not groups:
+        return state
+    if not np.isfinite(state[:, SLICES["base_rpy"]]).any():
+        raise UserError("velocities in the world frame need the trunk's orientation (base_roll, ... or base_quat_*)")
+    rot = rpy_to_matrices(state[:, SLICES["base_rpy"]])  # body -> world
+    out = state.copy()
+    for g in groups:
+        out[:, SLICES[g]] = np.einsum("nji,nj->ni", rot, state[:, SLICES[g]])  # R^T v
+    return out
+
+
+def _check_time_step(episode: np.ndarray, timestamp: np.ndarray, period: float, tol: float) -> None:
+    """Refuse a log whose median time step is not the control period (one line: the likely cause)."""
+    steps = np.diff(timestamp)[(np.diff(episode) == 0) & np.isfinite(np.diff(timestamp))]
+    if not len(steps):
+        return
+    med = float(np.median(steps))
+    if abs(med - period) <= tol * period:
+        return
+    ratio = med / period
+    unit = next((u for u, f in (("ms", 1e3), ("us", 1e6), ("ns", 1e9)) if abs(ratio / f - 1) <= tol), None)
+    hint = (f"timestamps in {unit}? map timestamp with \"scale\": {1 / {'ms': 1e3, 'us': 1e6, 'ns': 1e9}[unit]:g}"
+            if unit else f"is --control-hz right? the log's rate looks like {1 / med:.4g} Hz" if med > 0
+            else "timestamps must increase within an episode")
+    raise UserError(f"the log's median time step is {med:.6g}, not the control period 1/--control-hz = {period:.6g} s: "
+                    f"{hint}")
 
 
 def _fallen(state: np.ndarray) -> bool:

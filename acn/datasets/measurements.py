@@ -125,7 +125,7 @@ def fill_derived(m: Measurements) -> tuple[Measurements, list[str]]:
     can start from them. Returns the filled copy and the names of the derived channels.
     Missing positions cannot be derived: a ``UserError`` names them.
     """
-    from acn.toolkit.rotations import quat_to_matrix, rpy_to_quat
+    from acn.toolkit.rotations import rpy_rate_to_body, rpy_to_matrices
     from acn.toolkit.state import wrap_angle
 
     absent = [n for g in ("base_pos", "base_rpy", "joint_pos") for n in GROUPS[g] if n in m.missing]
@@ -144,10 +144,10 @@ def fill_derived(m: Measurements) -> tuple[Measurements, list[str]]:
     def rates(a: np.ndarray, b: np.ndarray, dt_: np.ndarray, at: np.ndarray) -> dict[str, np.ndarray]:
         d = (b - a) / dt_
         d[:, SLICES["base_rpy"]] = wrap_angle(b[:, SLICES["base_rpy"]] - a[:, SLICES["base_rpy"]]) / dt_
-        rot = np.moveaxis(np.array(quat_to_matrix(np.array(rpy_to_quat(at[:, SLICES["base_rpy"]].T)))), -1, 0)
+        rot = rpy_to_matrices(at[:, SLICES["base_rpy"]])
         return {"joint_vel": d[:, SLICES["joint_pos"]],
                 "base_linvel": np.einsum("nji,nj->ni", rot, d[:, SLICES["base_pos"]]),
-                "base_angvel": _rpy_rate_to_body(at[:, SLICES["base_rpy"]], d[:, SLICES["base_rpy"]])}
+                "base_angvel": rpy_rate_to_body(at[:, SLICES["base_rpy"]], d[:, SLICES["base_rpy"]])}
 
     now = rates(before, m.next_state, span, m.state)
     nxt = rates(m.state, m.next_state, np.full((n, 1), dt), m.next_state)  # backward, at t + 1
@@ -164,13 +164,3 @@ def fill_derived(m: Measurements) -> tuple[Measurements, list[str]]:
                        m.description, [c for c in m.missing if c not in derived])
     return out, derived
 
-
-def _rpy_rate_to_body(rpy: np.ndarray, rate: np.ndarray) -> np.ndarray:
-    """Body-frame angular velocity from extrinsic-XYZ Euler angles and their rates (N, 3)."""
-    r, p, _ = rpy.T
-    dr, dp, dy = rate.T
-    # omega_body for R = Rz(y) Ry(p) Rx(r)
-    wx = dr - np.sin(p) * dy
-    wy = np.cos(r) * dp + np.sin(r) * np.cos(p) * dy
-    wz = -np.sin(r) * dp + np.cos(r) * np.cos(p) * dy
-    return np.stack([wx, wy, wz], axis=1)

@@ -41,6 +41,15 @@ def urdf_path() -> str:
     return path
 
 
+def joint_limits() -> np.ndarray:
+    """(12, 2) lower and upper joint angle of each joint (rad, ``JOINT_NAMES`` order), from the URDF."""
+    import xml.etree.ElementTree as ET
+
+    limits = {j.get("name"): j.find("limit") for j in ET.parse(urdf_path()).getroot().iter("joint")
+              if j.find("limit") is not None}
+    return np.array([[float(limits[URDF_JOINT[j]].get(k)) for k in ("lower", "upper")] for j in JOINT_NAMES])
+
+
 def combine_point_mass(mass: float, com: np.ndarray, inertia: np.ndarray, m_p: float, p: np.ndarray):
     """A rigid body (mass kg, COM m, 3x3 inertia about the COM) plus a point mass at ``p``.
 

@@ -46,3 +46,19 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a x b for 3-vectors (np.cross is ~20x slower on this size)."""
     return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+def rpy_rate_to_body(rpy: np.ndarray, rate: np.ndarray) -> np.ndarray:
+    """Body-frame angular velocity from extrinsic-XYZ Euler angles and their rates (N, 3)."""
+    r, p, _ = rpy.T
+    dr, dp, dy = rate.T
+    # omega_body for R = Rz(y) Ry(p) Rx(r)
+    wx = dr - np.sin(p) * dy
+    wy = np.cos(r) * dp + np.sin(r) * np.cos(p) * dy
+    wz = -np.sin(r) * dp + np.cos(r) * np.cos(p) * dy
+    return np.stack([wx, wy, wz], axis=1)
+
+
+def rpy_to_matrices(rpy: np.ndarray) -> np.ndarray:
+    """(N, 3) extrinsic-XYZ Euler angles -> (N, 3, 3) body-to-world rotation matrices."""
+    return np.moveaxis(np.array(quat_to_matrix(np.array(rpy_to_quat(np.asarray(rpy).T)))), -1, 0)

@@ -34,7 +34,7 @@ import rerun as rr
 from acn.datasets.reader import state_difference
 from acn.toolkit.robot import STANDING_HEIGHT
 from acn.toolkit.state import FOOT_NAMES, GROUPS, JOINT_NAMES, SLICES, STATE_DIM
-from acn.viz.kinematics import RobotKinematics
+from acn.toolkit.kinematics import RobotKinematics
 from acn.viz.meshes import LinkMesh
 from acn.viz.trajectories import EpisodeView, Trajectory
 

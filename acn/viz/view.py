@@ -106,7 +106,7 @@ def prepare(cfg: ViewConfig) -> tuple[RecordedFrames, list[EpisodeView]]:
 
 def record(rec, episodes: list[EpisodeView], mesh_cell: float = DEFAULT_CELL) -> None:
     """Log ``episodes`` into the recording stream ``rec``."""
-    from acn.viz.kinematics import RobotKinematics
+    from acn.toolkit.kinematics import RobotKinematics
     from acn.viz.log import log_episode
 
     kinematics, meshes = RobotKinematics(), link_meshes(mesh_cell)

@@ -1,0 +1,329 @@
+"""Is a robot log self-consistent? Units, signs, frames and conventions, before any model.
+
+A log written by other code can use the schema's names but not its conventions: joint speeds
+in deg/s, the trunk's velocity in the world frame, an accelerometer with gravity removed,
+actions as offsets from a nominal pose, another zero for the joint angles. Compared with such
+data, a model "finds" a physical effect that is a unit error. Each check compares channels
+that must agree by the schema's definitions (``acn.toolkit.state``), never with a model:
+
+- ``velocities``: a velocity against the rate of change of its position over windows of about
+  40 ms (the logged velocity averaged over the same window, so both are the same quantity):
+  its scale (1; 57.3 for deg/s; -1 for a flipped sign), its correlation, another joint whose
+  rate it follows (columns mixed up), and for the trunk whether the WORLD frame fits better
+  than the body frame;
+- ``pose``: joint angles inside the A1's joint ranges (URDF), the trunk upright, its height;
+- ``stance_feet``: feet the log marks as touching the ground (or the lowest foot) at ground
+  height, by forward kinematics of the trunk pose and joint angles;
+- ``accelerometer``: its mean reads +9.81 m/s^2 on z for a level trunk (gravity included);
+- ``contacts``: 0/1 flags; ``actions``: position targets near the joint angles they drive.
+
+Findings are warnings, one line each with the fix where one is known: ``acn-import`` prints
+them and records them in the dataset's metadata; ``acn-diagnose`` repeats them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from acn.toolkit.rotations import rpy_rate_to_body, rpy_to_matrices
+from acn.toolkit.state import GROUPS, JOINT_NAMES, SLICES, STATE_NAMES, wrap_angle
+
+WINDOW_S = 0.04        # s, the window a velocity is compared over (position noise / window = rate noise)
+DEG = 180.0 / np.pi    # a deg/s velocity is DEG x the rate of change of a rad position
+MIN_ROWS = 20          # fewer finite windows than this: the check is skipped
+GRAVITY = 9.81
+# Stance feet by forward kinematics on consistent logs (both simulators, robot_log.py at up to 3x
+# its typical sensor noise): median height within +-0.3 cm, 10-90 % range at most 2.2 cm.
+STANCE_MEDIAN, STANCE_SPREAD = 0.015, 0.04  # m
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One inconsistency: which check, which channels, what looks wrong (and the fix)."""
+
+    check: str
+    channels: tuple[str, ...]
+    message: str
+
+    def to_json(self) -> dict:
+        return {"check": self.check, "channels": list(self.channels), "message": self.message}
+
+
+Episode = tuple[np.ndarray, np.ndarray]  # (states (n + 1, 43), actions (n, 12)): consecutive control steps
+
+
+def check(episodes: list[Episode], dt: float, action_mode: str = "position") -> list[Finding]:
+    """Every check on ``episodes`` (NaN columns are channels the log lacks), ``dt`` the control
+    period in s. Returns the findings, empty when the log is consistent."""
+    episodes = [(np.asarray(s, float), np.asarray(a, float)) for s, a in episodes if len(s) >= 2]
+    if not episodes:
+        return []
+    states = np.concatenate([s for s, _ in episodes])
+    out = pose(episodes)
+    suspect = {c for f in out for c in f.channels}  # a velocity is not blamed for its position's unit
+    out += velocities(episodes, dt, suspect) + stance_feet(states) + accelerometer(states) + contacts(states)
+    if action_mode == "position":
+        out += actions(episodes)
+    return out
+
+
+def from_measurements(m) -> list[Finding]:
+    """``check`` on ``acn.datasets.measurements.Measurements`` (rows of an episode consecutive)."""
+    linked = (m.episode[1:] == m.episode[:-1]) & (m.frame[1:] == m.frame[:-1] + 1)
+    starts = np.concatenate([[0], np.flatnonzero(~linked) + 1, [len(m)]])
+    episodes = [(np.vstack([m.state[a:b], m.next_state[b - 1:b]]), m.action[a:b]) for a, b in zip(starts[:-1], starts[1:])]
+    return check(episodes, m.control.control_dt, m.control.action_mode)
+
+
+# ----- velocities against the rate of change of positions -------------------------------------
+def _windows(episodes: list[Episode], dt: float, logged: slice, position, rotate: bool = False):
+    """(logged velocity averaged over each window (trapezoid), rate of change of the position
+    over it) for every window of k control steps.
+    ``position(a, b, T)`` gives the rate from the states at both ends; with ``rotate`` the logged
+    (body-frame) vectors are rotated into the world frame before averaging."""
+    k = max(1, round(WINDOW_S / dt))
+    xs, ys = [], []
+    for s, _ in episodes:
+        if len(s) <= k:
+            continue
+        v = s[:, logged]
+        if rotate:
+            v = np.einsum("nij,nj->ni", rpy_to_matrices(s[:, SLICES["base_rpy"]]), v)
+        c = np.vstack([np.zeros((1, v.shape[1])), np.cumsum(v, axis=0)])
+        total = c[k + 1:] - c[:-k - 1]                      # sum of v_t .. v_{t+k}
+        xs.append((total - 0.5 * v[:-k] - 0.5 * v[k:]) / k)
+        ys.append(position(s[:-k], s[k:], k * dt))
+    if not xs:
+        return None
+    x, y = np.concatenate(xs), np.concatenate(ys)
+    ok = np.isfinite(x).all(1) & np.isfinite(y).all(1)
+    return (x[ok], y[ok]) if ok.sum() >= MIN_ROWS else None
+
+
+def _scale(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """Least-squares scale b of x ~ b y (through zero) and the correlation of x and y."""
+    yy = float((y * y).sum())
+    if yy <= 0 or x.std() == 0 or y.std() == 0:
+        return float("nan"), 0.0
+    return float((x * y).sum() / yy), float(np.corrcoef(x, y)[0, 1])
+
+
+def _scale_problem(b: float, r: float) -> tuple[str, str] | None:
+    """(kind, text) when a velocity that follows its position's rate (|r| >= 0.5) has the wrong
+    scale. The windows are wide (noise in the rate attenuates b, transients at slow control
+    rates move it by up to ~0.6x): deg/s within 2x of 57.3, other units only beyond 3x."""
+    if abs(r) < 0.5 or not np.isfinite(b) or 1 / 3 <= b <= 3:
+        return None
+    if DEG / 2 <= b <= DEG * 2:
+        return "deg", 'deg/s? map it with "scale": 0.0174533'
+    if 1 / (2 * DEG) <= b <= 2 / DEG:
+        return "per_deg", "the position in degrees?"
+    if -3 <= b <= -1 / 3:
+        return "sign", 'the opposite sign: map it with "scale": -1'
+    if abs(r) < 0.8:  # another factor is only claimed where the two clearly move together
+        return None
+    return "scale", f'another unit? ("scale": {1 / b:.3g} would match)'
+
+
+def _merge(check: str, per_channel: list[tuple[str, str, str, float]], what: str) -> list[Finding]:
+    """Findings per kind: channels sharing one problem become one line."""
+    out = []
+    for kind in dict.fromkeys(k for _, k, _, _ in per_channel):
+        rows = [(c, t, v) for c, k, t, v in per_channel if k == kind]
+        names = tuple(c for c, _, _ in rows)
+        vals = np.array([v for _, _, v in rows])
+        value = f"{vals[0]:.3g}" if len(rows) == 1 else f"{vals.min():.3g}..{vals.max():.3g}"
+        out.append(Finding(check, names, f"{_names(names)} {what.format(value=value)}: {rows[0][1]}"))
+    return out
+
+
+def _names(names: tuple[str, ...]) -> str:
+    for g, members in GROUPS.items():
+        if set(members) == set(names):
+            return f"every {g} channel"
+    return ", ".join(names) if len(names) <= 4 else f"{', '.join(names[:3])} and {len(names) - 3} more"
+
+
+def velocities(episodes: list[Episode], dt: float, suspect: set[str] = frozenset()) -> list[Finding]:
+    """Velocities against the rate of change of positions (``suspect`` positions: skipped)."""
+    out: list[Finding] = []
+    # Joints: each velocity against the rate of every joint angle (a mixed-up column follows another).
+    w = _windows(episodes, dt, SLICES["joint_vel"], lambda a, b, T: (b - a)[:, SLICES["joint_pos"]] / T)
+    if w is not None:
+        x, y = w
+        problems, unrelated, mixed = [], [], []
+        for i, j in enumerate(JOINT_NAMES):
+            if f"{j}_pos" in suspect:
+                continue
+            b, r = _scale(x[:, i], y[:, i])
+            corr = np.array([_scale(x[:, i], y[:, k])[1] for k in range(len(JOINT_NAMES))])
+            best = int(np.argmax(corr))
+            if best != i and corr[best] >= 0.8 and corr[best] > abs(r) + 0.1:
+                mixed.append(Finding("velocities", (f"{j}_vel",), f"{j}_vel follows the rate of change of "
+                                     f"{JOINT_NAMES[best]}_pos (correlation {corr[best]:.2f}), not of {j}_pos "
+                                     f"({r:.2f}): columns mixed up?"))
+            elif p := _scale_problem(b, r):
+                problems.append((f"{j}_vel", *p, b))
+            elif abs(r) < 0.5 and y[:, i].std() > 0.2:  # the joint moves, its velocity does not follow
+                unrelated.append((f"{j}_vel", "unrelated", "is it this joint's velocity in rad/s?", r))
+        out += _merge("velocities", problems, "{value} x the rate of change of the joint angle") + mixed
+        out += _merge("velocities", unrelated, "does not follow the rate of change of the joint angle (correlation {value})")
+    # Trunk: body frame (the schema) against world frame, then the scale in the better one.
+    rpy = SLICES["base_rpy"]
+
+    def world_rate(a, b, T):
+        return (b - a)[:, SLICES["base_pos"]] / T
+
+    def body_angular(a, b, T):
+        d = wrap_angle((b - a)[:, rpy])
+        return rpy_rate_to_body(a[:, rpy] + d / 2, d / T)
+
+    def world_angular(a, b, T):
+        return np.einsum("nij,nj->ni", rpy_to_matrices(a[:, rpy] + wrap_angle((b - a)[:, rpy]) / 2), body_angular(a, b, T))
+
+    for group, positions, body, world in (
+            # linear: the position's rate is in the world frame; the logged body vectors are rotated into it
+            ("base_linvel", ("base_pos", "base_rpy"), _windows(episodes, dt, SLICES["base_linvel"], world_rate, rotate=True),
+             _windows(episodes, dt, SLICES["base_linvel"], world_rate)),
+            # angular: the Euler angles' rate gives the body-frame rate; the world one rotates it
+            ("base_angvel", ("base_rpy",), _windows(episodes, dt, SLICES["base_angvel"], body_angular),
+             _windows(episodes, dt, SLICES["base_angvel"], world_angular))):
+        if body is None or world is None or any(suspect & set(GROUPS[g]) for g in positions):
+            continue
+        e_body = float(np.sqrt(((body[0] - body[1]) ** 2).mean()))
+        e_world = float(np.sqrt(((world[0] - world[1]) ** 2).mean()))
+        unit = "m/s" if group == "base_linvel" else "rad/s"
+        if e_world < 0.5 * e_body and e_body > 0.05:
+            flag = "--linvel-frame" if group == "base_linvel" else "--angvel-frame"
+            out.append(Finding("velocities", GROUPS[group], f"{group} matches the trunk's motion in the WORLD frame "
+                               f"(RMS difference {e_world:.3g} {unit}) better than in the body frame the schema uses "
+                               f"({e_body:.3g} {unit}): re-import with {flag} world"))
+            continue
+        x, y = body
+        problems = []
+        for k, name in enumerate(GROUPS[group]):
+            b, r = _scale(x[:, k], y[:, k])
+            if p := _scale_problem(b, r):
+                problems.append((name, *p, b))
+        out += _merge("velocities", problems, "{value} x the trunk's rate of motion")
+    return out
+
+
+# ----- pose ------------------------------------------------------------------------------------
+def pose(episodes: list[Episode]) -> list[Finding]:
+    """Joint angles in the A1's ranges, the trunk upright where episodes start, its height."""
+    from acn.toolkit.robot import STANDING_HEIGHT, joint_limits
+
+    states = np.concatenate([s for s, _ in episodes])
+    out: list[Finding] = []
+    q = states[:, SLICES["joint_pos"]]
+    limits = joint_limits()
+    problems = []
+    for i, j in enumerate(JOINT_NAMES):
+        v = q[:, i][np.isfinite(q[:, i])]
+        if len(v) < MIN_ROWS:
+            continue
+        lo, hi = limits[i] + [-0.05, 0.05]
+        inside = lambda x: ((x >= lo) & (x <= hi)).mean()  # noqa: E731
+        if inside(v) >= 0.95:
+            continue
+        share, med = 1 - inside(v), float(np.median(v))
+        if inside(v / DEG) >= 0.95:
+            problems.append((f"{j}_pos", "deg", 'degrees? map it with "scale": 0.0174533', med))
+        elif inside(-v) >= 0.95:
+            problems.append((f"{j}_pos", "sign", 'the opposite sign convention? map it with "scale": -1', med))
+        else:
+            problems.append((f"{j}_pos", "range", f"outside the A1's range in {share:.0%} of rows: another zero? "
+                             'map it with an "offset"', med))
+    out += _merge("pose", problems, "(median {value}) lies outside the A1's joint range (URDF)")
+    # Tilt where episodes start (a robot may fall over later; a convention error tilts it from the start).
+    cols = [STATE_NAMES.index("base_roll"), STATE_NAMES.index("base_pitch")]
+    first = np.array([s[0, cols] for s, _ in episodes])
+    first = first[np.isfinite(first).all(1)]
+    if len(first) and (np.abs(first) > 0.8).any(1).mean() > 0.5:
+        r, p = np.median(np.abs(first), axis=0)
+        out.append(Finding("pose", GROUPS["base_rpy"], f"the trunk is tilted by more than 0.8 rad where most episodes "
+                           f"start (median |roll| {r:.2f}, |pitch| {p:.2f} rad): the schema's orientation is extrinsic "
+                           "XYZ Euler angles in rad (from a quaternion: which column is w?)"))
+    z = states[:, STATE_NAMES.index("base_pos_z")]
+    z = z[np.isfinite(z)]
+    if len(z) >= MIN_ROWS and not 0.08 <= (med := float(np.median(z))) <= 0.6:
+        hint = 'mm? map it with "scale": 0.001' if 0.08 <= med / 1000 <= 0.6 else \
+            f"the schema's base_pos_z is the trunk origin's height above the ground (the A1 stands at {STANDING_HEIGHT} m)"
+        out.append(Finding("pose", ("base_pos_z",), f"base_pos_z has a median of {med:.4g} m: {hint}"))
+    return out
+
+
+def stance_feet(states: np.ndarray, most: int = 4000) -> list[Finding]:
+    """Feet marked touching (or, without contact flags, the lowest foot) at ground height."""
+    from acn.toolkit.kinematics import FOOT_RADIUS, RobotKinematics
+
+    pose_cols = np.r_[SLICES["base_pos"], SLICES["base_rpy"], SLICES["joint_pos"]]
+    rows = np.flatnonzero(np.isfinite(states[:, pose_cols]).all(1))
+    if len(rows) < MIN_ROWS:
+        return []
+    rows = rows[np.linspace(0, len(rows) - 1, min(most, len(rows))).astype(int)]
+    height = RobotKinematics().poses(states[rows]).foot[..., 2] - FOOT_RADIUS  # (n, 4) m
+    flags = states[rows][:, SLICES["contact"]]
+    if np.isfinite(flags).all() and (flags > 0.5).any():
+        h, basis = height[flags > 0.5], "the log marks as touching the ground"
+    else:
+        h, basis = height.min(1), "lowest in each row"
+    med, lo, hi = (float(v) for v in np.percentile(h, [50, 10, 90]))
+    if abs(med) <= STANCE_MEDIAN and hi - lo <= STANCE_SPREAD:
+        return []
+    return [Finding("stance_feet", GROUPS["base_pos"] + GROUPS["joint_pos"],
+                    f"the feet {basis} are {med * 100:.1f} cm above the ground by forward kinematics (10-90 %: "
+                    f"{lo * 100:.1f}..{hi * 100:.1f} cm): the ground is not at z = 0, the trunk origin is not the A1's, "
+                    "the joint angles have another zero or sign, or the legs another order (ours: FR, FL, RR, RL)")]
+
+
+# ----- sensors and actions ---------------------------------------------------------------------
+def accelerometer(states: np.ndarray) -> list[Finding]:
+    acc = states[:, SLICES["imu_acc"]]
+    tilt = states[:, [STATE_NAMES.index("base_roll"), STATE_NAMES.index("base_pitch")]]
+    if np.isfinite(tilt).all(1).mean() > 0.5:  # rows near level only (the robot may have fallen)
+        acc = acc[(np.abs(tilt) < 0.3).all(1)]
+    acc = acc[np.isfinite(acc).all(1)]
+    if len(acc) < MIN_ROWS:
+        return []
+    mean = acc.mean(0)
+    norm = float(np.linalg.norm(mean))
+    if abs(mean[2] - GRAVITY) < 2.5:
+        return []
+    if abs(mean[2] + GRAVITY) < 2.5:
+        hint = 'its sign is flipped: map each with "scale": -1'
+    elif abs(norm - 1) < 0.25:
+        hint = 'in g? map each with "scale": 9.81'
+    elif norm < 2:
+        hint = "gravity removed? the schema's accelerometer includes it (specific force)"
+    else:
+        hint = "another unit or frame?"
+    return [Finding("accelerometer", GROUPS["imu_acc"], f"the accelerometer's mean is ({mean[0]:.2f}, {mean[1]:.2f}, "
+                    f"{mean[2]:.2f}) m/s^2, not about (0, 0, +9.81) for a trunk near level: {hint}")]
+
+
+def contacts(states: np.ndarray) -> list[Finding]:
+    c = states[:, SLICES["contact"]]
+    bad = [(GROUPS["contact"][i], float(np.nanmax(np.abs(c[:, i]))))
+           for i in range(c.shape[1]) if np.isfinite(c[:, i]).any()
+           and (np.abs(c[:, i][np.isfinite(c[:, i])] - 0.5) > 0.51).mean() > 0.01]
+    if not bad:
+        return []
+    names = tuple(n for n, _ in bad)
+    return [Finding("contacts", names, f"{_names(names)} should be 0/1 flags (1: touching the ground) but reach "
+                    f"{max(v for _, v in bad):.3g}: forces? threshold them before importing")]
+
+
+def actions(episodes: list[Episode]) -> list[Finding]:
+    """Position actions are PD targets in rad: near the joint angles they drive."""
+    gap = np.concatenate([a - s[:-1, SLICES["joint_pos"]] for s, a in episodes])
+    problems = []
+    for i, j in enumerate(JOINT_NAMES):
+        g = gap[:, i][np.isfinite(gap[:, i])]
+        if len(g) >= MIN_ROWS and abs(med := float(np.median(g))) > 0.5:
+            problems.append((f"action.{j}", "far", 'position actions are absolute PD targets in rad: offsets from a '
+                             'nominal pose (map them with an "offset") or another unit?', med))
+    return _merge("actions", problems, "differs from its joint angle by a median of {value} rad")

@@ -1,0 +1,142 @@
+"""Consistency checks of robot logs (acn.datasets.checks): units, signs, frames, conventions.
+
+Logs from ``tests/robot_log.py`` (MuJoCo stepped directly, sensor noise), corrupted the way
+logs from other code are: each corruption must be named, a consistent log must give nothing.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pacsv
+import pytest
+from robot_log import LogSpec, simulate
+from test_import import CONTROL
+
+from acn.datasets.checks import check
+from acn.datasets.measurements import load_measurements
+from acn.toolkit.robot import STANCE
+from acn.toolkit.rotations import rpy_to_matrices, rpy_to_quat
+from acn.toolkit.state import GROUPS, JOINT_NAMES, STATE_NAMES
+
+
+@pytest.fixture(scope="module")
+def rows():
+    return simulate(LogSpec(seconds=2.0, episodes=2, seed=7, noise=1.0))
+
+
+def _episodes(c: dict) -> list:
+    s = np.column_stack([c[n] for n in STATE_NAMES])
+    a = np.column_stack([c[f"action.{j}"] for j in JOINT_NAMES])
+    return [(s[c["episode_index"] == e], a[c["episode_index"] == e][:-1]) for e in np.unique(c["episode_index"])]
+
+
+def _yawed(c: dict, angle: float = 1.2) -> None:
+    """The whole log turned about the vertical (same physics): body and world frames now differ."""
+    x, y = c["base_pos_x"].copy(), c["base_pos_y"].copy()
+    c["base_pos_x"], c["base_pos_y"] = np.cos(angle) * x - np.sin(angle) * y, np.sin(angle) * x + np.cos(angle) * y
+    c["base_yaw"] = c["base_yaw"] + angle
+
+
+def _in_world(c: dict, group: str) -> None:
+    rot = rpy_to_matrices(np.column_stack([c[n] for n in GROUPS["base_rpy"]]))
+    v = np.einsum("nij,nj->ni", rot, np.column_stack([c[n] for n in GROUPS[group]]))
+    for k, n in enumerate(GROUPS[group]):
+        c[n] = v[:, k]
+
+
+def _scale(names, factor):
+    def change(c):
+        for n in names:
+            c[n] = c[n] * factor
+    return change
+
+
+def _swap(a: str, b: str):
+    def change(c):
+        c[a], c[b] = c[b].copy(), c[a].copy()
+    return change
+
+
+def _offsets(c):
+    for k, j in enumerate(JOINT_NAMES):
+        c[f"action.{j}"] = c[f"action.{j}"] - STANCE[k]
+
+
+def _shift(name, value):
+    def change(c):
+        c[name] = c[name] + value
+    return change
+
+
+CALVES = [f"{j}_{k}" for j in JOINT_NAMES if "calf" in j for k in ("pos", "vel")] + \
+    [f"action.{j}" for j in JOINT_NAMES if "calf" in j]
+
+CORRUPTIONS = {
+    "joint speeds in deg/s": (_scale(GROUPS["joint_vel"], 180 / np.pi), "every joint_vel channel", "deg/s"),
+    "two velocity columns swapped": (_swap("FR_thigh_vel", "FL_thigh_vel"), "FR_thigh_vel follows", "mixed up"),
+    "angular velocity in the world frame": (lambda c: (_yawed(c), _in_world(c, "base_angvel")), "base_angvel",
+                                            "--angvel-frame world"),
+    "linear velocity in the world frame": (lambda c: (_yawed(c), _in_world(c, "base_linvel")), "base_linvel",
+                                           "--linvel-frame world"),
+    "calf angles of the opposite sign": (_scale(CALVES, -1), "calf_pos", "opposite sign"),
+    "trunk height in mm": (_scale(["base_pos_z"], 1000), "base_pos_z", "mm?"),
+    "ground 5 cm below z = 0": (_shift("base_pos_z", 0.05), "above the ground", "another zero"),
+    "gravity removed from the accelerometer": (_shift("imu_acc_z", -9.81), "accelerometer", "gravity removed"),
+    "actions as offsets from the stance": (_offsets, "action.FR_thigh", "offsets from a nominal pose"),
+    "contact forces instead of flags": (_scale(GROUPS["contact"], 80.0), "contact", "0/1 flags"),
+}
+
+
+def test_consistent_logs_have_no_findings(rows):
+    assert check(_episodes(rows), 1 / 50) == []
+    turned = {k: v.copy() for k, v in rows.items()}
+    _yawed(turned)
+    assert check(_episodes(turned), 1 / 50) == []
+    fast = simulate(LogSpec(seconds=1.0, episodes=1, seed=8, noise=3.0, control_hz=200))
+    assert check(_episodes(fast), 1 / 200) == []
+
+
+@pytest.mark.parametrize("name", list(CORRUPTIONS))
+def test_each_corruption_is_named(rows, name):
+    change, where, what = CORRUPTIONS[name]
+    c = {k: v.copy() for k, v in rows.items()}
+    change(c)
+    found = [f.message for f in check(_episodes(c), 1 / 50)]
+    assert any(where in m and what in m for m in found), found
+
+
+def test_import_converts_a_quaternion_and_world_velocities_and_records_findings(tmp_path, rows, acn):
+    c = {k: v.copy() for k, v in rows.items()}
+    _yawed(c)
+    want = np.column_stack([c[n] for n in STATE_NAMES])
+    _in_world(c, "base_linvel")
+    x, y, z, w = rpy_to_quat(np.column_stack([c.pop(n) for n in GROUPS["base_rpy"]]).T)
+    c.update(base_quat_w=w, base_quat_x=x, base_quat_y=y, base_quat_z=z)
+    pacsv.write_csv(pa.table(c), tmp_path / "log.csv")
+    r = acn("import", str(tmp_path / "log.csv"), "--out", str(tmp_path / "ok"), "--linvel-frame", "world", *CONTROL)
+    assert r.returncode == 0 and "check (" not in r.stdout, r.stdout + r.stderr
+    m = load_measurements(tmp_path / "ok")
+    ep0 = want[c["episode_index"] == 0][:-1]
+    np.testing.assert_allclose(m.state[: len(ep0)], ep0, atol=2e-5)  # float32 storage
+    # Without the frame flag: imported as it is, the finding printed and kept in the metadata.
+    r = acn("import", str(tmp_path / "log.csv"), "--out", str(tmp_path / "as_is"), *CONTROL)
+    assert r.returncode == 0 and "check (velocities): base_linvel" in r.stdout and "--linvel-frame world" in r.stdout
+    info = json.loads((tmp_path / "as_is" / "meta" / "info.json").read_text())["acn"]["import"]
+    assert info["checks"] and info["checks"][0]["channels"] == list(GROUPS["base_linvel"])
+
+
+def test_timestamps_in_ms_and_bad_quaternions_are_refused_in_one_line(tmp_path, rows, acn):
+    c = {k: v.copy() for k, v in rows.items()}
+    c["timestamp"] = c["timestamp"] * 1000
+    pacsv.write_csv(pa.table(c), tmp_path / "ms.csv")
+    q = {k: v.copy() for k, v in rows.items() if k not in GROUPS["base_rpy"]}
+    q.update(base_quat_w=np.full(len(q["timestamp"]), 2.0), base_quat_x=0 * q["timestamp"],
+             base_quat_y=0 * q["timestamp"], base_quat_z=0 * q["timestamp"])
+    pacsv.write_csv(pa.table(q), tmp_path / "quat.csv")
+    for log, message in (("ms.csv", "timestamps in ms"), ("quat.csv", "not a unit quaternion")):
+        r = acn("import", str(tmp_path / log), "--out", str(tmp_path / "ds"), *CONTROL)
+        assert r.returncode == 2 and message in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+        assert not (tmp_path / "ds").exists()
