@@ -15,6 +15,7 @@ from acn.errors import UserError
 from acn.models.diagnose import DiagnoseConfig, diagnose
 from acn.toolkit.collector import CollectConfig
 from acn.toolkit.effects import AppliedEffect, Model, get_effect
+from acn.toolkit.state import JOINT_NAMES
 
 # Small and quick: a few hundred rows, a few hundred re-simulated per stage.
 FAST = DiagnoseConfig(horizons=(1, 5), compare_rows=300, rollout_starts=30, rank_rows=150, judge_rows=300,
@@ -203,7 +204,7 @@ def test_cli_writes_json_report_and_model(tmp_path, capsys):
     assert abs(fixed["eps_transfer"]) < abs(unc["eps_transfer"]), (fixed["eps_transfer"], unc["eps_transfer"])
     assert loop["robot"]["hidden_effects"][0]["name"] == "motor_strength"
     assert "closed loop, model vs the robot" in out and "with effects" in out
-    assert result["verdict"] == "effect"
+    assert result["verdict"] == "effect" and result["data_checks"] == []  # acn-collect's data are consistent
     assert set(result["error"]) == {"1", "5"} and "joint_vel" in result["error"]["1"]
     assert [r["name"] for r in result["ranking"]][0] == "motor_strength"
     for key in ("name", "params", "free_parameters", "explained", "score"):
@@ -221,6 +222,22 @@ def test_cli_writes_json_report_and_model(tmp_path, capsys):
                           "--effects", "motor_strength,joint_damping", "--json", str(tmp_path / "again.json")]) == 0
     again = json.loads((tmp_path / "again.json").read_text())
     assert again["verdict"] == "none" and again["headline_error"]["before"] < 0.2 * added["headline_before"]
+
+
+def test_a_log_that_breaks_a_convention_is_diagnosed_with_its_data_checks(tmp_path, capsys, acn):
+    """Joint speeds logged in deg/s and imported without a map: acn-import says so, and the
+    diagnosis lists it and names it in its reason (a model would explain it as physics)."""
+    vel = {f"{j}_vel": (f"{j}_vel", np.pi / 180) for j in JOINT_NAMES}  # written as deg/s, same names
+    write_log(tmp_path / "log.csv", LogSpec(seconds=3.0, episodes=2, seed=6, noise=1.0, rename=vel))
+    r = acn("import", str(tmp_path / "log.csv"), "--out", str(tmp_path / "m"), "--control-hz", "50", "--kp", "60",
+            "--kd", "1.5", "--torque-limit", "33.5")
+    assert r.returncode == 0 and "check (velocities): every joint_vel channel" in r.stdout and "deg/s" in r.stdout
+    r = acn("diagnose", str(tmp_path / "m"), "--model", "mujoco", "--horizons", "1", "--effects", "joint_damping",
+            "--json", str(tmp_path / "d.json"))
+    assert r.returncode == 0, r.stderr
+    assert "data check (velocities): every joint_vel channel" in r.stdout
+    result = json.loads((tmp_path / "d.json").read_text())
+    assert result["data_checks"][0]["channels"][0] == "FR_hip_vel" and "consistency finding" in result["reason"]
 
 
 @pytest.mark.parametrize("args, message", [

@@ -12,6 +12,10 @@ Verdict:
 - ``none``: the model matches within the noise: the error is zero, or less structured than
   that and no plausible candidate explains it.
 
+Before any model, the measurements' own consistency is checked (``acn.datasets.checks``: units,
+signs, frames, conventions); findings are listed with the diagnosis and named in the reason,
+since a model compared with inconsistent data explains the inconsistency as physics.
+
 The noise floor is what ridge regressions on a library of state and action terms cannot
 predict (``noise``) of the model's held-out residual, or of what the best candidates leave,
 whichever is lower: after the right effect only noise is left.
@@ -24,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from acn.datasets import checks
 from acn.datasets.measurements import Measurements
 from acn.models.diagnose.add import Added, add_effect, auto
 from acn.models.diagnose.compare import Comparison, compare, floor_of
@@ -52,6 +57,7 @@ class Diagnosis:
     reason: str
     seconds: dict = field(default_factory=dict)
     closed_loop: dict | None = None  # robot vs model in closed loop (``transfer.closed_loop_models``)
+    data_checks: list[checks.Finding] = field(default_factory=list)  # the measurements' own consistency
 
     @property
     def floor_mse(self) -> float:
@@ -113,13 +119,15 @@ def noise_fitted(floor: np.ndarray, residual: np.ndarray, ranking: list[Candidat
 
 
 def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None, add: list[str] = (),
-             automatic: bool = False, progress=None) -> Diagnosis:
-    """Run the whole diagnosis (module docstring); ``add``: effects to add in this order."""
+             automatic: bool = False, progress=None, check_data: bool = True) -> Diagnosis:
+    """Run the whole diagnosis (module docstring); ``add``: effects to add in this order;
+    ``check_data``: check the measurements' consistency first (off for synthetic ones)."""
     cfg = cfg or DiagnoseConfig()
     for name in add:
         get_effect(name)  # unknown names fail before any work
     say = progress or (lambda msg, fraction=None: None)
     t0 = time.perf_counter()
+    findings = checks.from_measurements(data) if check_data else []
     problem = prepare(data, model, cfg)
     say("comparing the model with the measurements")
     before = compare(problem, model, cfg)
@@ -153,8 +161,12 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
         added += auto(problem, current, cfg, judge_rows, current_residual, floor_mse, again, say)
     t3 = time.perf_counter()
     v, reason = verdict(before, mse, floor_mse, ranking, added, automatic)
+    if findings:
+        reason += (f"; the measurements have {len(findings)} consistency finding(s) (data checks): fix the data first, "
+                   "a model explains them as physics")
     return Diagnosis(data.description, problem, before, judge_rows, floor, mse, where, ranking, added, v, reason,
-                     seconds={"compare": t1 - t0, "rank": t2 - t1, "add": t3 - t2, "total": t3 - t0})
+                     seconds={"compare": t1 - t0, "rank": t2 - t1, "add": t3 - t2, "total": t3 - t0},
+                     data_checks=findings)
 
 
 def explain_corrector(data: Measurements, model: Model, corrector_dir, cfg: DiagnoseConfig | None = None,
@@ -186,4 +198,4 @@ def explain_corrector(data: Measurements, model: Model, corrector_dir, cfg: Diag
     next_state[rows] = outcome
     synthetic = Measurements(d.state, d.action, next_state, d.effort, d.episode, d.frame, d.control, d.info,
                              f"corrections of {corrector_dir} on {data.description}", d.missing)
-    return diagnose(synthetic, model, cfg, progress=progress)
+    return diagnose(synthetic, model, cfg, progress=progress, check_data=False)

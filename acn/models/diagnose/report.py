@@ -3,6 +3,8 @@
 JSON keys (the machine-readable contract):
 
 - ``verdict``: ``"none"``, ``"effect"`` or ``"unexplained"``; ``reason`` in words;
+- ``data_checks``: the measurements' own consistency findings (``acn.datasets.checks``), each
+  ``check``, ``channels``, ``message``; empty when consistent;
 - ``headline_error``: its definition and the value before and after the added effects;
 - ``error``: horizon (control steps, as a string) -> channel group -> normalised RMS;
 - ``noise_floor``: MSE, share of the error, per channel group;
@@ -101,6 +103,7 @@ def to_json(d: Diagnosis) -> dict:
     groups = group_errors(p, np.sqrt(d.floor)[None, :])
     return {
         "verdict": d.verdict, "reason": d.reason, "measurements": d.measurements,
+        "data_checks": [f.to_json() for f in d.data_checks],
         "rows": {"transitions": len(p.data), "fit": len(p.fit_rows), "held_out": len(p.held_rows),
                  "compared": len(d.before.rows), "diverged": d.before.diverged},
         "derived_channels": p.derived,
@@ -156,10 +159,11 @@ def error_table(before: Comparison, after: Comparison | None = None) -> str:
 
 
 def terminal(d: Diagnosis) -> str:
-    out = [f"measurements: {d.measurements}; model: {d.before.model.describe()}",
-           f"headline error (one step, normalised): {d.before.headline:.4f}; noise floor {1 - d.structured_share:.0%} "
-           "of it", "", "error per channel group and horizon (normalised RMS, held-out rows):", error_table(d.before),
-           "", "where: " + d.where["summary"], "", "candidate effects, best first:"]
+    out = [f"measurements: {d.measurements}; model: {d.before.model.describe()}"]
+    out += [f"data check ({f.check}): {f.message}" for f in d.data_checks]
+    out += [f"headline error (one step, normalised): {d.before.headline:.4f}; noise floor "
+            f"{1 - d.structured_share:.0%} of it", "", "error per channel group and horizon (normalised RMS, held-out "
+            "rows):", error_table(d.before), "", "where: " + d.where["summary"], "", "candidate effects, best first:"]
     rows = []
     for c in d.ranking:
         j = c.judgement
@@ -250,12 +254,15 @@ def write_html(d: Diagnosis, path: str | Path) -> Path:
                     + "".join(f"<br><i>{html.escape(t)}</i>" for t in (_unidentified_text(a.fit), _noise_fit_text(a)) if t)
                     + "</li>"
                     for a in d.added)
+    checks_html = ("<p><b>Data checks</b> (the measurements' own consistency, before any model; a model compared "
+                   "with them explains these as physics):</p><ul>"
+                   + "".join(f"<li>{html.escape(f.message)}</li>" for f in d.data_checks) + "</ul>") if d.data_checks else ""
     body = f"""<!doctype html><html><head><meta charset="utf-8"><title>acn-diagnose: {html.escape(d.measurements)}</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:4px 8px}}</style></head><body>
 <h1>Diagnosis of {html.escape(d.measurements)}</h1>
 <p><b>Verdict: {d.verdict}</b> &mdash; {html.escape(d.reason)}.</p>
-<p>Model: {html.escape(d.before.model.describe())}. Headline error {d.before.headline:.4f} &rarr; {d.final.headline:.4f}
+{checks_html}<p>Model: {html.escape(d.before.model.describe())}. Headline error {d.before.headline:.4f} &rarr; {d.final.headline:.4f}
 ({html.escape(HEADLINE)}). Noise floor: {1 - d.structured_share:.0%} of the error.</p>
 <p><b>Where:</b> {html.escape(d.where['summary'])}</p>
 <h2>Candidate effects</h2><table><tr><th>effect</th><th>fitted as</th><th>explained</th><th>error removed</th><th>z</th>
