@@ -95,6 +95,24 @@ def test_two_effects_together_are_both_found(tmp_path):
     assert d.verdict == "effect" and d.final.headline < 0.2 * d.before.headline
 
 
+def test_a_richer_effect_gives_way_to_a_simpler_one_beside_the_others(tmp_path):
+    """Strength 0.85 and friction 0.2 hidden; both PD gains added first (as greedy adding can on
+    noisy logs), then friction. Judged again beside friction, the gains give way to the simpler
+    motor_strength and the chain is refitted (``add.revisit``)."""
+    from acn.models.diagnose.add import revisit
+
+    data = measured(tmp_path, {"motor_strength": {"scale": 0.85}, "joint_friction": {"value": 0.2}})
+    nominal = Model.parse("mujoco")
+    d = diagnose(data, nominal, FAST, add=["pd_gains", "joint_friction"])
+    assert [a.name for a in d.added] == ["pd_gains", "joint_friction"]
+    residual = d.problem.residual_of(nominal.sim_config(d.problem.control), d.judge_rows)
+    chain = revisit(d.problem, d.before, FAST, d.judge_rows, residual, d.added)
+    assert [a.name for a in chain] == ["motor_strength", "joint_friction"]
+    values = {t.name: t.values for t in chain[-1].after.model.effects}
+    assert close(values["motor_strength"]["scale"], 0.85, rel=0.05) and close(values["joint_friction"]["value"], 0.2)
+    assert chain[-1].after.headline <= 1.1 * d.final.headline  # as good as the richer chain
+
+
 def test_nominal_data_is_none(tmp_path):
     d = diagnose(measured(tmp_path, {}), Model.parse("mujoco"), FAST)
     assert d.verdict == "none", d.reason
