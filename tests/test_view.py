@@ -234,7 +234,9 @@ def diagnosis_json() -> dict:
             "where": {"summary": "At one step the model is worst in joint_vel; the error grows with joint speed."},
             "ranking": [{"name": "joint_damping", "explained": 0.97, "significant": True},
                         {"name": "armature", "explained": 0.1, "significant": False}],
-            "added": [{"name": "joint_damping", "headline_before": 0.21, "headline_after": 0.01}]}
+            "added": [{"name": "joint_damping", "headline_before": 0.21, "headline_after": 0.01}],
+            "data_checks": [{"check": "contacts", "channels": ["FR_contact"],
+                             "message": "FR_contact should be 0/1 flags (1: touching the ground) but reach 80"}]}
 
 
 @pytest.fixture(scope="module")
@@ -320,6 +322,7 @@ def test_the_error_falls_when_the_hidden_effect_is_added(hidden):
     doc = column(text, "/episode_000/diagnosis", "TextDocument:text")[0]
     assert "verdict **effect**" in doc and "the error grows with joint speed" in doc
     assert "| 1 | joint_damping | 97% | yes |" in doc and f"{rms(nominal):.4f}" in doc
+    assert "**Data checks**" in doc and "- FR_contact should be 0/1 flags" in doc
 
 
 def test_an_imported_log_lacking_channels_is_compared_on_what_it_has(tmp_path):

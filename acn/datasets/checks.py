@@ -24,11 +24,15 @@ them and records them in the dataset's metadata; ``acn-diagnose`` repeats them.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from acn.toolkit.rotations import rpy_rate_to_body, rpy_to_matrices
 from acn.toolkit.state import GROUPS, JOINT_NAMES, SLICES, STATE_NAMES, wrap_angle
+
+if TYPE_CHECKING:
+    from acn.datasets.measurements import Measurements
 
 WINDOW_S = 0.04        # s, the window a velocity is compared over (position noise / window = rate noise)
 DEG = 180.0 / np.pi    # a deg/s velocity is DEG x the rate of change of a rad position
@@ -69,7 +73,7 @@ def check(episodes: list[Episode], dt: float, action_mode: str = "position") -> 
     return out
 
 
-def from_measurements(m) -> list[Finding]:
+def from_measurements(m: Measurements) -> list[Finding]:
     """``check`` on ``acn.datasets.measurements.Measurements`` (rows of an episode consecutive)."""
     linked = (m.episode[1:] == m.episode[:-1]) & (m.frame[1:] == m.frame[:-1] + 1)
     starts = np.concatenate([[0], np.flatnonzero(~linked) + 1, [len(m)]])

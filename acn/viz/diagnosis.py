@@ -197,6 +197,9 @@ def diagnosis_markdown(name: str, d: dict) -> str:
              f"**Where:** {d['where']['summary']}", "",
              "| rank | effect | explained (of the error above the noise floor) | significant |", "|---|---|---|---|",
              *rows]
+    checks = [c["message"] for c in d.get("data_checks") or [] if isinstance(c, dict) and "message" in c]
+    if checks:
+        lines[1:1] = ["", "**Data checks** (the measurements' own consistency):", *(f"- {m}" for m in checks)]
     added = [a for a in d.get("added") or [] if isinstance(a, dict) and "name" in a]
     if added:
         lines += ["", "**Added:** " + "; ".join(
