@@ -308,10 +308,12 @@ def test_measurements_at_another_rate_or_without_joints_are_one_line_errors(tmp_
 
     cols = simulate(LogSpec(seconds=0.5, episodes=1))
     pacsv.write_csv(pa.table(cols), tmp_path / "log.csv")
-    # Imported as 25 Hz while the log is 50 Hz: every time step is wrong, nothing to diagnose.
+    # Imported as 25 Hz while the log is 50 Hz: every time step is wrong, refused with the rate it looks like.
     assert import_main([str(tmp_path / "log.csv"), "--out", str(tmp_path / "ds"), "--control-hz", "25", "--kp", "60",
                         "--kd", "1.5", "--torque-limit", "33.5"]) == 2
-    assert "nothing to import" in capsys.readouterr().err
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is --control-hz right?" in err[0] and "looks like 50 Hz" in err[0], err
+    assert not (tmp_path / "ds").exists()
     # A dataset whose joint channels are all missing is refused by the diagnosis.
     assert import_main([str(tmp_path / "log.csv"), "--out", str(tmp_path / "ok"), "--control-hz", "50", "--kp", "60",
                         "--kd", "1.5", "--torque-limit", "33.5"]) == 0
