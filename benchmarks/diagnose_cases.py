@@ -9,6 +9,11 @@ line per case and ``name=value`` totals:
 - ``within_15pct``: of those, the fitted parameter within 15 % (a per-joint vector: its norm);
 - ``removed_80pct``: of those, the added effect explains >= 80 % of the error above the floor;
 - ``verdict_right``: "none" on nominal logs, "unexplained" outside the catalogue, "effect" else.
+
+With ``--pairs``, logs with TWO hidden effects instead (``--auto``), one line each and:
+
+- ``pairs_both_named``: both hidden effects added, and nothing else;
+- ``pairs_within_15pct``: of the parameters of those, within 15 % of the truth.
 """
 
 from __future__ import annotations
@@ -78,14 +83,67 @@ CASES = {
 }
 
 
+def _both(*edits):
+    def edit(spec):
+        for e in edits:
+            e(spec)
+    return edit
+
+
+# name -> (LogSpec overrides, [(effect, parameter, true value), ...])
+PAIRS = {
+    "latency+damping": ({"latency_steps": 15, "spec_edit": _joints("damping", 0.5)},
+                        [("actuator_latency", "seconds", 0.015), ("joint_damping", "value", 0.5)]),
+    "strength+friction": ({"strength": 0.85, "spec_edit": _joints("frictionloss", 0.2)},
+                          [("motor_strength", "scale", 0.85), ("joint_friction", "value", 0.2)]),
+    "latency+strength": ({"latency_steps": 10, "strength": 0.85},
+                         [("actuator_latency", "seconds", 0.01), ("motor_strength", "scale", 0.85)]),
+    "payload+damping": ({"spec_edit": _both(_payload, _joints("damping", 0.4))},
+                        [("payload", "mass", 2.0), ("joint_damping", "value", 0.4)]),
+    "pd_gains+armature": ({"gains": (0.75, 1.0), "spec_edit": _joints("armature", 0.02)},
+                          [("pd_gains", "kp_scale", 0.75), ("armature", "value", 0.02)]),
+}
+
+
+def pairs(args, root: Path) -> None:
+    named, within = [0, 0], [0, 0]
+    for i, (name, (over, truth)) in enumerate(PAIRS.items()):
+        spec = LogSpec(seconds=args.seconds, episodes=args.episodes, seed=300 + i, noise=args.noise,
+                       **{"controller": "sines", **over})
+        write_log(root / f"p{i}.csv", spec)
+        path, _ = import_log(root / f"p{i}.csv", root / f"p{i}", ImportConfig(50, 60.0, 1.5, 33.5))
+        t = time.perf_counter()
+        d = diagnose(load_measurements(path), Model.parse("mujoco"), DiagnoseConfig(), automatic=True)
+        fitted = {t.name: t.values for t in d.final.model.effects}
+        both = sorted(fitted) == sorted(e for e, _, _ in truth)
+        named[0] += both
+        named[1] += 1
+        cells = []
+        for effect, key, true in truth:
+            if effect in fitted:
+                value = float(np.mean(fitted[effect][key]))
+                within[0] += abs(value - true) <= 0.15 * abs(true)
+                within[1] += 1
+                cells.append(f"{effect}.{key}={value:.4g} (true {true})")
+        extra = [f"{n}({', '.join(f'{k}={float(np.mean(v)):.4g}' for k, v in fitted[n].items())})"
+                 for n in fitted if n not in {e for e, _, _ in truth}]
+        print(f"{name:18s} verdict={d.verdict:11s} both={'yes' if both else 'no':3s} {' '.join(cells)}"
+              f"{' also ' + ' '.join(extra) if extra else ''} {time.perf_counter() - t:.0f}s", flush=True)
+    print(f"pairs_both_named={named[0]}/{named[1]}")
+    print(f"pairs_within_15pct={within[0]}/{within[1]}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--noise", type=float, default=1.0, help="sensor noise, multiple of robot_log.NOISE")
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--episodes", type=int, default=4)
     ap.add_argument("--cases", default=",".join(CASES))
+    ap.add_argument("--pairs", action="store_true", help="logs with two hidden effects instead (PAIRS)")
     args = ap.parse_args()
     root = Path(tempfile.mkdtemp())
+    if args.pairs:
+        return pairs(args, root)
     tally = {"ranked_first": [0, 0], "within_15pct": [0, 0], "removed_80pct": [0, 0], "verdict_right": [0, 0]}
     for i, name in enumerate(args.cases.split(",")):
         over, want, effect, key, true = CASES[name]
