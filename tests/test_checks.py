@@ -140,3 +140,19 @@ def test_timestamps_in_ms_and_bad_quaternions_are_refused_in_one_line(tmp_path, 
         r = acn("import", str(tmp_path / log), "--out", str(tmp_path / "ds"), *CONTROL)
         assert r.returncode == 2 and message in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
         assert not (tmp_path / "ds").exists()
+
+
+def test_a_physical_effect_the_checks_see_is_left_to_the_diagnosis():
+    """Encoder zeros off by 2-7 degrees put stance feet off the ground: the finding says it may be
+    the catalogue's encoder_offset, and a diagnosis that names it does not call the data broken."""
+    from acn.models.diagnose.pipeline import findings_note
+
+    offsets = np.array([0.05, -0.08, 0.1, -0.04, 0.06, -0.12, 0.03, 0.09, -0.07, -0.1, 0.04, 0.08])
+    found = check(_episodes(simulate(LogSpec(seconds=4.0, episodes=2, seed=9, noise=1.0, encoder_offset=offsets))),
+                  1 / 50)
+    assert [f.check for f in found] == ["stance_feet"] and found[0].may_be == ("encoder_offset",), found
+    assert "encoder_offset" in found[0].message
+    assert "fix the data first" not in findings_note(found, ("encoder_offset",))
+    assert "what encoder_offset does too" in findings_note(found, ("encoder_offset",))
+    assert "fix the data first" in findings_note(found, ("joint_damping",))
+    assert findings_note([], ()) == ""

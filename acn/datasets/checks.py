@@ -50,9 +50,11 @@ class Finding:
     check: str
     channels: tuple[str, ...]
     message: str
+    may_be: tuple[str, ...] = ()  # catalogue effects (acn.toolkit.effects) that cause this finding too
 
     def to_json(self) -> dict:
-        return {"check": self.check, "channels": list(self.channels), "message": self.message}
+        return {"check": self.check, "channels": list(self.channels), "message": self.message,
+                "may_be": list(self.may_be)}
 
 
 Episode = tuple[np.ndarray, np.ndarray]  # (states (n + 1, 43), actions (n, 12)): consecutive control steps
@@ -281,7 +283,9 @@ def stance_feet(states: np.ndarray, most: int = 4000) -> list[Finding]:
     return [Finding("stance_feet", GROUPS["base_pos"] + GROUPS["joint_pos"],
                     f"the feet {basis} are {med * 100:.1f} cm above the ground by forward kinematics (10-90 %: "
                     f"{lo * 100:.1f}..{hi * 100:.1f} cm): the ground is not at z = 0, the trunk origin is not the A1's, "
-                    "the joint angles have another zero or sign, or the legs another order (ours: FR, FL, RR, RL)")]
+                    "the joint angles have another zero or sign, or the legs another order (ours: FR, FL, RR, RL); "
+                    "or, physics, the joint encoders' zeros are off by a few degrees (effect encoder_offset)",
+                    may_be=("encoder_offset",))]
 
 
 # ----- sensors and actions ---------------------------------------------------------------------

@@ -73,36 +73,51 @@ class Diagnosis:
 
 
 def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Candidate], added: list[Added],
-            automatic: bool) -> tuple[str, str]:
-    """(verdict, reason in words); see module docstring."""
+            automatic: bool) -> tuple[str, str, tuple[str, ...]]:
+    """(verdict, reason in words, the effects it names); see module docstring."""
     if before.headline < EXACT:
-        return "none", f"the model reproduces the measurements (headline error {before.headline:.2g})"
+        return "none", f"the model reproduces the measurements (headline error {before.headline:.2g})", ()
     structured = 1.0 - floor_mse / mse if mse > 0 else 0.0
     if automatic and added:
         share = explained_share(mse, added[-1].judgement.mse_after, floor_mse)
         names = " + ".join(a.name for a in added)
         if share >= EFFECT_SHARE:
-            return "effect", f"{names} explain {share:.0%} of the error above the noise floor"
+            return "effect", f"{names} explain {share:.0%} of the error above the noise floor", \
+                tuple(a.name for a in added)
     plausible = [c for c in ranking if c.judgement.significant and not doubt(c)]
     top = plausible[0] if plausible else None
     if top is not None and top.judgement.explained(floor_mse) >= EFFECT_SHARE:
         skipped = [c.name for c in ranking[: ranking.index(top)]]
         also = f"; ranked above it but set aside: {', '.join(skipped)}" if skipped else ""
         return "effect", (f"{top.name} explains {top.judgement.explained(floor_mse):.0%} of the error above the noise "
-                          f"floor (held-out improvement {top.judgement.z:.1f} standard errors){also}")
+                          f"floor (held-out improvement {top.judgement.z:.1f} standard errors){also}"), (top.name,)
     best = ranking[0] if ranking else None
     if structured >= STRUCTURED_SHARE:
         why = ("no candidate improves held-out predictions significantly" if best is None
                or not best.judgement.significant else
                f"the best plausible candidate, {top.name}, explains only {top.judgement.explained(floor_mse):.0%} of it"
                if top is not None else f"the best candidate, {best.name}, {doubt(best)}")
-        return "unexplained", f"{structured:.0%} of the error is structured (above the noise floor); {why}"
+        return "unexplained", f"{structured:.0%} of the error is structured (above the noise floor); {why}", ()
     extra = f"; the best candidate, {best.name}, removes {best.judgement.removed:.1%} of it" if best else ""
     noise = [c for c in ranking if one_step_only(c)]
     if noise:
         extra += f"; {noise[0].name} {one_step_only(noise[0])}"
     return "none", (f"the model matches within the noise: only {max(structured, 0):.0%} of the error is predictable "
-                    f"from the state and actions and no plausible effect explains it{extra}")
+                    f"from the state and actions and no plausible effect explains it{extra}"), ()
+
+
+def findings_note(findings: list[checks.Finding], named: tuple[str, ...]) -> str:
+    """What the verdict's reason adds about the data checks: a finding that an effect the verdict
+    names produces too (``Finding.may_be``, e.g. encoder offsets put stance feet off the ground)
+    is accounted for; any other says to fix the data first."""
+    covered = [f for f in findings if set(f.may_be) & set(named)]
+    rest = [f for f in findings if f not in covered]
+    note = "".join(f"; the {f.check} data check's finding is what {' / '.join(set(f.may_be) & set(named))} "
+                   "does too" for f in covered)
+    if rest:
+        note += (f"; the measurements have {len(rest)} consistency finding(s) (data checks): fix the data first, "
+                 "a model explains them as physics")
+    return note
 
 
 def noise_fitted(floor: np.ndarray, residual: np.ndarray, ranking: list[Candidate]) -> np.ndarray:
@@ -160,10 +175,8 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
         again = ranking if not added else rank(problem, current.model, cfg, judge_rows, current_residual, say)
         added += auto(problem, current, cfg, judge_rows, current_residual, floor_mse, again, say)
     t3 = time.perf_counter()
-    v, reason = verdict(before, mse, floor_mse, ranking, added, automatic)
-    if findings:
-        reason += (f"; the measurements have {len(findings)} consistency finding(s) (data checks): fix the data first, "
-                   "a model explains them as physics")
+    v, reason, named = verdict(before, mse, floor_mse, ranking, added, automatic)
+    reason += findings_note(findings, named)
     return Diagnosis(data.description, problem, before, judge_rows, floor, mse, where, ranking, added, v, reason,
                      seconds={"compare": t1 - t0, "rank": t2 - t1, "add": t3 - t2, "total": t3 - t0},
                      data_checks=findings)
