@@ -327,6 +327,7 @@ def _print_fit_summary(m: dict, path: Path) -> None:
               f"divergence_reduction={c['divergence_reduction']:.3f}")
         print(f"eps_transfer {c['eps_transfer_uncorrected']:.3f} -> {c['eps_transfer']:.3f}; "
               f"delta_corr {c['delta_corr']:.3f}")
+        print(f"verdict: {c['verdict']}")
     print(f"train_samples_per_s={m['train_samples_per_s']:.0f}")
     print(f"wrote the frozen corrector to {path} (load: acn.models.Corrector.load('{path}'))")
 

@@ -220,6 +220,7 @@ def test_cli_writes_json_report_and_model(tmp_path, capsys):
     unc, fixed = loop["runs"]["uncorrected"], loop["runs"]["with effects"]
     assert fixed["divergence"] < 0.2 * unc["divergence"], (fixed["divergence"], unc["divergence"])
     assert abs(fixed["eps_transfer"]) < abs(unc["eps_transfer"]), (fixed["eps_transfer"], unc["eps_transfer"])
+    assert fixed["versus"]["reference"] == "uncorrected" and fixed["versus"]["reward_gap_closer_by"]["mean"] > 0
     assert loop["robot"]["hidden_effects"][0]["name"] == "motor_strength"
     assert "closed loop, model vs the robot" in out and "with effects" in out
     assert result["verdict"] == "effect" and result["data_checks"] == []  # acn-collect's data are consistent

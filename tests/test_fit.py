@@ -100,8 +100,32 @@ def test_inverse_reports_rounds_and_oracles(inverse):
     assert cl["runs"]["tracking_oracle"]["divergence"] < cl["runs"]["uncorrected"]["divergence"]
     for run in cl["runs"].values():
         assert np.isfinite(run["eps_transfer"]) and np.isfinite(run["divergence"])
+    # Every run against the uncorrected one, episode by episode from the same starts, and the verdict.
+    unc, cor = cl["runs"]["uncorrected"], cl["runs"]["corrected"]
+    assert "versus" not in unc and cor["versus"]["reference"] == "uncorrected"
+    gap = cor["versus"]["reward_gap_closer_by"]
+    assert gap["mean"] == pytest.approx(np.mean(unc["reward_gap_per_episode"]) - np.mean(cor["reward_gap_per_episode"]))
+    assert gap["n"] == 1 and cor["versus"]["change"]["reward_gap"] == "no clear change"  # one episode: no spread
+    assert cl["verdict"].startswith("the corrector does not narrow the transfer gap on 1 held-out episode")
+    assert "same-state oracle's reward gap" in cl["verdict"]
     # eps_transfer closer to zero than uncorrected is NOT asserted: with 480 training rows it is
     # not (measured 77 vs 44); on `make demo`'s data it is (289 vs 313, README).
+
+
+def test_runs_are_compared_episode_by_episode():
+    """versus: paired per-episode differences; a change counts beyond two standard errors."""
+    from acn.models.evaluate import versus
+
+    ref = {"reward_gap_per_episode": [10.0, 12.0, 11.0, 13.0], "divergence_per_episode": [1.0, 1.1, 0.9, 1.0],
+           "ends": ["time_limit"] * 4}
+    closer = {"reward_gap_per_episode": [5.0, 6.0, 5.0, 7.0], "divergence_per_episode": [1.0, 1.2, 0.8, 1.0],
+              "ends": ["time_limit", "target_fell", "time_limit", "time_limit"]}
+    v = versus(ref, closer, "uncorrected")
+    assert v["reward_gap_closer_by"]["mean"] == pytest.approx(5.75) and v["change"]["reward_gap"] == "narrower"
+    assert v["divergence_lower_by"]["mean"] == pytest.approx(0.0) and v["change"]["divergence"] == "no clear change"
+    assert v["new_falls"] == 1
+    wider = versus(ref, {**ref, "reward_gap_per_episode": [20.0, 21.0, 23.0, 22.0]}, "uncorrected")
+    assert wider["change"]["reward_gap"] == "wider" and wider["new_falls"] == 0
 
 
 def test_acn_loss_gradient_is_autograds():

@@ -27,6 +27,13 @@ delta_corr = mean_i (R_i^source - R_i^target,uncorrected); with mean, mode and e
 the per-step reward differences as in the paper's Table 1 (mode = centre of the fullest of 50
 bins, expectation = histogram-weighted mean).
 
+Each run is also compared with the reference run (``uncorrected``, or the model as given), episode
+by episode from the same initial states (``versus``): how much closer its return is to the
+source's (``reward_gap_closer_by``: mean of |R_ref - R_src| - |R_run - R_src|), how much lower its
+divergence (``divergence_lower_by``), each with its standard error over the episodes, new falls,
+and in words (``change``): a difference counts only beyond two standard errors. ``verdict``
+says it in one sentence.
+
 ``same_state_oracle(sim, policy, initial_states, seconds)`` gives the same-state oracle's
 per-step rewards for a policy that acts on the target's own state (e.g. a PPO policy), for
 evaluations outside paired collection.
@@ -148,8 +155,29 @@ def closed_loop(cfg: CollectConfig, corrector, episodes: int, seconds: float, ou
     return out
 
 
-def summarise(runs: dict[str, list[Episode]], output_channels: list[str], channel_scale: np.ndarray) -> dict:
-    """Metrics of each run against the shared source trajectory (module docstring)."""
+def episode_stats(x: np.ndarray) -> dict:
+    """mean, std, stderr and n of per-episode values (std and stderr 0 for one episode)."""
+    x = np.asarray(x, float)
+    n = len(x)
+    std = float(x.std(ddof=1)) if n > 1 else 0.0
+    return {"mean": float(x.mean()), "std": std, "stderr": float(std / np.sqrt(n)) if n > 1 else 0.0, "n": int(n)}
+
+
+SIGNIFICANT_STDERR = 2.0  # a paired per-episode difference counts beyond this many standard errors
+
+
+def change(stats: dict, better: str, worse: str) -> str:
+    """``better`` / ``worse`` where the mean paired difference exceeds ``SIGNIFICANT_STDERR``
+    standard errors (positive: better), else "no clear change" (always with one episode)."""
+    if stats["n"] < 2 or abs(stats["mean"]) <= SIGNIFICANT_STDERR * stats["stderr"]:
+        return "no clear change"
+    return better if stats["mean"] > 0 else worse
+
+
+def summarise(runs: dict[str, list[Episode]], output_channels: list[str], channel_scale: np.ndarray,
+              reference: str = "uncorrected") -> dict:
+    """Metrics of each run against the shared source trajectory, and of each run against
+    ``reference`` (``versus``) when it is among the runs (module docstring)."""
     index = np.array([STATE_NAMES.index(c) for c in output_channels])
     names = [r for r in RUNS if r in runs] + [r for r in runs if r not in RUNS]
     n_ep = len(runs[names[0]])
@@ -180,7 +208,14 @@ def summarise(runs: dict[str, list[Episode]], output_channels: list[str], channe
             "ends": [e.end for e in eps],
             "target_falls": sum(e.end in ("target_fell", "target_diverged") for e in eps),
             "steps": [len(e) for e in eps],
+            "reward_gap_per_episode": np.abs(R_tgt - R_src).tolist(),  # |R_target - R_source|
+            "divergence_per_episode": [float(x.mean()) for x in headline],
         }
+    if reference in out["runs"]:
+        ref = out["runs"][reference]
+        for name, run in out["runs"].items():
+            if name != reference:
+                run["versus"] = versus(ref, run, reference)
     if "uncorrected" not in out["runs"]:
         return out
     unc = out["runs"]["uncorrected"]
@@ -198,7 +233,42 @@ def summarise(runs: dict[str, list[Episode]], output_channels: list[str], channe
         out["divergence_reduction"] = 1.0 - cor["divergence"] / unc["divergence"]
         out["reward_difference_stats_corrected"] = cor["reward_difference_stats"]
         out["corrected_ends"] = cor["ends"]
+        out["verdict"] = verdict(out)
     return out
+
+
+def versus(ref: dict, run: dict, reference: str) -> dict:
+    """``run`` against ``ref`` (two ``summarise`` runs), episode by episode (module docstring)."""
+    gap = episode_stats(np.subtract(ref["reward_gap_per_episode"], run["reward_gap_per_episode"]))
+    div = episode_stats(np.subtract(ref["divergence_per_episode"], run["divergence_per_episode"]))
+    fell = lambda r: np.array([e in ("target_fell", "target_diverged") for e in r["ends"]])  # noqa: E731
+    return {"reference": reference, "reward_gap_closer_by": gap, "divergence_lower_by": div,
+            "new_falls": int((fell(run) & ~fell(ref)).sum()),
+            "change": {"reward_gap": change(gap, "narrower", "wider"), "divergence": change(div, "lower", "higher")}}
+
+
+def verdict(cl: dict, run: str = "corrected", what: str = "the corrector") -> str:
+    """One sentence: ``run`` against its reference in ``cl`` (``summarise``'s result): reward gap,
+    divergence, falls, and the share of the same-state oracle's reward-gap reduction it reaches."""
+    r = cl["runs"][run]
+    v = r["versus"]
+    ref = cl["runs"][v["reference"]]
+    g, d = v["reward_gap_closer_by"], v["divergence_lower_by"]
+    mean = lambda x: float(np.mean(x))  # noqa: E731
+    helps = v["change"]["reward_gap"] == "narrower" and not v["new_falls"]
+    text = (f"{what} {'narrows' if helps else 'does not narrow'} the transfer gap on {g['n']} held-out episode(s): "
+            f"reward gap |R_target - R_source| {mean(ref['reward_gap_per_episode']):.1f} -> "
+            f"{mean(r['reward_gap_per_episode']):.1f} per episode ({v['change']['reward_gap']}: closer by "
+            f"{g['mean']:.1f} +- {g['stderr']:.1f} stderr), divergence {ref['divergence']:.3g} -> {r['divergence']:.3g} "
+            f"({v['change']['divergence']}: lower by {d['mean']:.3g} +- {d['stderr']:.2g}), "
+            f"{v['new_falls'] or 'no'} new fall(s)")
+    oracle = cl["runs"].get("same_state_oracle")
+    if oracle is not None and run != "same_state_oracle":
+        reach = mean(ref["reward_gap_per_episode"]) - mean(oracle["reward_gap_per_episode"])
+        text += f"; the same-state oracle's reward gap {mean(oracle['reward_gap_per_episode']):.1f}"
+        if reach > 0:
+            text += f" ({g['mean'] / reach:.0%} of its reduction reached)"
+    return text
 
 
 def same_state_oracle(sim, policy, initial_states: Sequence[np.ndarray], seconds: float, source: str = "pybullet",

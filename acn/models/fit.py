@@ -627,7 +627,7 @@ def _summary(m: dict) -> dict:
         cl = m["closed_loop"]
         out["closed_loop"] = {k: cl[k] for k in ("divergence_uncorrected", "divergence_corrected",
                                                  "divergence_reduction", "eps_transfer", "eps_transfer_uncorrected",
-                                                 "delta_corr") if k in cl}
+                                                 "delta_corr", "verdict") if k in cl}
         out["closed_loop"]["runs"] = {name: {k: run[k] for k in ("divergence", "eps_transfer", "target_falls")}
                                       for name, run in cl["runs"].items()}
     return _finite(out)

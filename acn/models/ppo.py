@@ -60,7 +60,7 @@ from acn.atomic import move_into_place, temporary_beside
 from acn.errors import UserError
 from acn.models.acn import INPUT_CHANNELS
 from acn.models.corrector import Corrector, torch_threads
-from acn.models.evaluate import HELD_OUT_SEED_OFFSET, distribution_stats
+from acn.models.evaluate import HELD_OUT_SEED_OFFSET, distribution_stats, episode_stats
 from acn.models.fit import FitConfig
 from acn.models.policy_io import WalkingPolicy, policy_config
 from acn.toolkit.backends import ACTION_MODES, SimConfig
@@ -386,25 +386,21 @@ def _evaluate_transfer(policy: WalkingPolicy, corrector: Corrector | None, episo
         out["forward_speed"][run] = float(np.mean([v for _, _, v in results]))
     R = {k: np.array(v) for k, v in out["returns"].items()}
 
-    def diff_stats(x: np.ndarray) -> dict:
-        return {"mean": float(x.mean()), "std": float(x.std(ddof=1)) if len(x) > 1 else 0.0,
-                "stderr": float(x.std(ddof=1) / np.sqrt(len(x))) if len(x) > 1 else 0.0, "n": int(len(x))}
-
     def step_diff(a: list[np.ndarray], b: list[np.ndarray]) -> np.ndarray:
         return np.concatenate([x[: min(len(x), len(y))] - y[: min(len(x), len(y))] for x, y in zip(a, b)])
 
-    out["delta_corr"] = diff_stats(R["pybullet"] - R["mujoco"])
-    out["eps_transfer_uncorrected"] = diff_stats(R["mujoco"] - R["pybullet"])
+    out["delta_corr"] = episode_stats(R["pybullet"] - R["mujoco"])
+    out["eps_transfer_uncorrected"] = episode_stats(R["mujoco"] - R["pybullet"])
     out["step_stats"] = {"delta_corr": distribution_stats(step_diff(per_step["pybullet"], per_step["mujoco"]))}
     gap_unc = np.abs(R["mujoco"] - R["pybullet"])
     if corrector is not None:
-        out["eps_transfer"] = diff_stats(R["mujoco_corrected"] - R["pybullet"])
+        out["eps_transfer"] = episode_stats(R["mujoco_corrected"] - R["pybullet"])
         out["step_stats"]["eps_transfer"] = distribution_stats(step_diff(per_step["mujoco_corrected"],
                                                                          per_step["pybullet"]))
         gap_cor = np.abs(R["mujoco_corrected"] - R["pybullet"])
         out["gap"] = {
-            "uncorrected": diff_stats(gap_unc), "corrected": diff_stats(gap_cor),
-            "closer_by": diff_stats(gap_unc - gap_cor),  # > 0: the corrected MuJoCo return is closer to PyBullet's
+            "uncorrected": episode_stats(gap_unc), "corrected": episode_stats(gap_cor),
+            "closer_by": episode_stats(gap_unc - gap_cor),  # > 0: the corrected MuJoCo return is closer to PyBullet's
             "fraction_closed": float(1.0 - abs(out["eps_transfer"]["mean"]) / abs(out["delta_corr"]["mean"]))
             if out["delta_corr"]["mean"] else None,
         }
@@ -417,9 +413,9 @@ def _evaluate_transfer(policy: WalkingPolicy, corrector: Corrector | None, episo
         out["same_state_oracle"] = {
             "episodes": n, "returns": r_or.tolist(),
             "full_length_episodes": int(sum(k == env_cfg.max_steps for k in steps)),
-            "eps_transfer": diff_stats(r_or - R["pybullet"][:n]),
-            "eps_transfer_uncorrected_same_episodes": diff_stats(R["mujoco"][:n] - R["pybullet"][:n]),
-            "eps_transfer_corrector_same_episodes": (diff_stats(R["mujoco_corrected"][:n] - R["pybullet"][:n])
+            "eps_transfer": episode_stats(r_or - R["pybullet"][:n]),
+            "eps_transfer_uncorrected_same_episodes": episode_stats(R["mujoco"][:n] - R["pybullet"][:n]),
+            "eps_transfer_corrector_same_episodes": (episode_stats(R["mujoco_corrected"][:n] - R["pybullet"][:n])
                                                      if corrector is not None else None),
         }
     return out

@@ -38,7 +38,7 @@ from acn.models.diagnose.add import Added, longer_gain
 from acn.models.diagnose.compare import Comparison, group_errors
 from acn.models.diagnose.pipeline import Diagnosis
 from acn.models.diagnose.rank import Candidate, doubt, fits_noise, unidentified
-from acn.models.diagnose.transfer import table as closed_loop_table
+from acn.models.diagnose.transfer import closer_by, table as closed_loop_table
 
 HEADLINE = ("one-step teacher-forced prediction error on held-out rows: RMS over every compared channel of "
             "(measured - predicted) / spread of the measured one-step change (1 = as wrong as predicting no motion)")
@@ -238,11 +238,14 @@ def write_html(d: Diagnosis, path: str | Path) -> Path:
     parts = [pio.to_html(f, full_html=False, include_plotlyjs=(i == 0)) for i, f in enumerate(figs)]
     loop_rows = "".join(
         f"<tr><td>{html.escape(name)}</td><td>{r['divergence']:.3g}</td><td>{r['eps_transfer']:.1f}</td>"
+        f"<td>{np.mean(r['reward_gap_per_episode']):.1f}</td><td>{html.escape(closer_by(r))}</td>"
         f"<td>{r['target_falls']}/{len(r['ends'])}</td><td>{html.escape(loop['models'].get(name, ''))}</td></tr>"
         for name, r in loop["runs"].items()) if loop else ""
     loop_html = (f"<h2>Closed loop: the model beside the robot</h2><p>{len(loop['horizon_steps'])} held-out episode(s); "
                  f"the robot's return {loop['return_source']:.1f}; eps_transfer = mean (R_model - R_robot), the paper's "
-                 "reward.</p><table><tr><th>run</th><th>divergence</th><th>eps_transfer</th><th>falls</th><th>model</th>"
+                 "reward; reward gap = mean |R_model - R_robot| per episode, closer by = than the first run, per "
+                 "episode from the same start, +- its standard error.</p><table><tr><th>run</th><th>divergence</th>"
+                 "<th>eps_transfer</th><th>reward gap</th><th>closer by</th><th>falls</th><th>model</th>"
                  f"</tr>{loop_rows}</table>") if loop else ""
     ranking = "".join(
         f"<tr><td>{c.name}</td><td>{c.fit.granularity}</td><td>{c.judgement.explained(d.floor_mse):.0%}</td>"

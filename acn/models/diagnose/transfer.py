@@ -21,7 +21,9 @@ physics and a network, get the same numbers:
 
 Divergence (robot - model, headline over the 33 output channels each divided by the spread of
 the measured states), eps_transfer = mean over episodes of (R_model - R_robot) with the paper's
-reward, falls: all as ``acn.models.evaluate.summarise``. Logs from other code (``acn-import``)
+reward, falls, and each run against the model as given, episode by episode (reward gap
+|R_model - R_robot| closer by, divergence lower by, each +- its standard error): all as
+``acn.models.evaluate.summarise``. Logs from other code (``acn-import``)
 cannot be re-run: only the data's own simulator can stand in for the robot.
 """
 
@@ -29,6 +31,8 @@ from __future__ import annotations
 
 from pathlib import Path
 from typing import Callable
+
+import numpy as np
 
 from acn.datasets.measurements import Measurements
 from acn.errors import UserError
@@ -110,7 +114,7 @@ def closed_loop_models(dataset: str | Path, data: Measurements, side: str, befor
         runs.update(run_oracles(cfg, episodes, spread))
         names["same_state_oracle"] = f"{before.describe()} + the best per-step correction F(s, a) (bound)"
         names["tracking_oracle"] = f"{before.describe()} + corrections that see the robot's next state"
-    out = summarise(runs, list(OUTPUT_CHANNELS), spread)
+    out = summarise(runs, list(OUTPUT_CHANNELS), spread, reference=first)
     out["runs"] = {k: out["runs"][k] for k in ORDER if k in out["runs"]}
     out["models"] = names
     out["robot"] = {"simulator": cfg.source, "hidden_effects": [e.to_json() for e in cfg.hidden_effects],
@@ -123,13 +127,24 @@ def table(result: dict) -> str:
     from acn.toolkit.state import DYNAMIC_GROUPS
 
     groups = list(DYNAMIC_GROUPS)
-    head = ["run", "divergence", *groups, "eps_transfer", "falls"]
+    head = ["run", "divergence", *groups, "eps_transfer", "reward gap", "gap closer by", "falls"]
     rows = [head]
     for name, r in result["runs"].items():
         rows.append([name, f"{r['divergence']:.3g}", *(f"{r['divergence_by_group'][g]:.3g}" for g in groups),
-                     f"{r['eps_transfer']:.1f}", f"{r['target_falls']}/{len(r['ends'])}"])
+                     f"{r['eps_transfer']:.1f}", f"{np.mean(r['reward_gap_per_episode']):.1f}", closer_by(r),
+                     f"{r['target_falls']}/{len(r['ends'])}"])
     width = [max(len(row[i]) for row in rows) for i in range(len(head))]
-    lines = [f"closed loop, model vs the robot (return of the robot {result['return_source']:.1f}):"]
+    lines = [f"closed loop, model vs the robot (return of the robot {result['return_source']:.1f}; reward gap: "
+             "mean |R_model - R_robot| per episode; closer by: than the first run, +- stderr):"]
     lines += ["  " + "  ".join(c.ljust(w) for c, w in zip(row, width)) for row in rows]
     lines += [f"  {k}: {v}" for k, v in result["models"].items()]
     return "\n".join(lines)
+
+
+def closer_by(run: dict) -> str:
+    """The run's reward gap against the first run's, as text: "37.1 +- 9.9 (narrower)"."""
+    if "versus" not in run:
+        return "-"
+    v = run["versus"]
+    g = v["reward_gap_closer_by"]
+    return f"{g['mean']:.1f} +- {g['stderr']:.1f} ({v['change']['reward_gap']})"
