@@ -11,12 +11,16 @@ first quarter, half and all of the training episodes:
 - ``mlp``: ``acn.models.acn.mlp`` (2 x 256, SiLU), Adam 1e-3, batch 128, 40 epochs; the BEST
   held-out R^2 over the epochs is printed (chosen on the held-out rows themselves: optimistic).
 
+``--foot-kinematics`` adds what the contact sees, which an MLP would have to learn from the joint
+angles and trunk pose: each foot's height above the ground and its world velocity (MuJoCo forward
+kinematics of the state, ``mj_objectVelocity`` of the foot sphere), 16 more inputs.
+
 R^2 on held-out episodes is the share of the gap's variance a function of (s, a) learned from
 these rows reproduces: a ceiling for what a learned corrector can remove, where the oracle's
 share is a ceiling only for a corrector that knows the row. If it stays low and grows slowly
 with the data, the gap is not a function of (s, a) that these data pin down.
 
-Usage: python benchmarks/gap_predictability.py DATASET [DATASET ...]
+Usage: python benchmarks/gap_predictability.py [--foot-kinematics] DATASET [DATASET ...]
 Prints name=value lines per dataset (its directory name as prefix).
 """
 
@@ -25,6 +29,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import mujoco
 import numpy as np
 import torch
 
@@ -33,8 +38,11 @@ from acn.datasets.record import config_from_metadata
 from acn.models.acn import DYNAMIC_INPUT_CHANNELS, OUTPUT_CHANNELS, mlp
 from acn.models.evaluate import output_spread
 from acn.models.fit import FitConfig, same_state_rows, split_episodes
+from acn.toolkit.kinematics import FOOT_RADIUS, RobotKinematics
 from acn.toolkit.resim import Resimulator
-from acn.toolkit.state import GROUPS, STATE_NAMES
+from acn.toolkit.robot import URDF_JOINT
+from acn.toolkit.rotations import rpy_to_matrices
+from acn.toolkit.state import GROUPS, JOINT_NAMES, SLICES, STATE_NAMES
 
 
 def r2(pred: np.ndarray, y: np.ndarray, mean: np.ndarray) -> float:
@@ -45,6 +53,28 @@ def r2(pred: np.ndarray, y: np.ndarray, mean: np.ndarray) -> float:
 def ridge(x_tr: np.ndarray, y_tr: np.ndarray, x: np.ndarray, lam: float = 1.0) -> np.ndarray:
     z_tr, z = (np.c_[a, np.ones(len(a))] for a in (x_tr, x))
     return z @ np.linalg.solve(z_tr.T @ z_tr + lam * np.eye(z.shape[1]), z_tr.T @ y_tr)
+
+
+def foot_kinematics(states: np.ndarray) -> np.ndarray:
+    """(T, 16): the 4 feet's heights above the ground (m), then their world velocities (m/s)."""
+    kin = RobotKinematics()
+    m, d = kin.model, kin.data
+    qpos, rot = kin.qpos(states), rpy_to_matrices(states[:, SLICES["base_rpy"]])
+    dof = [m.jnt_dofadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, URDF_JOINT[j])] for j in JOINT_NAMES]
+    out, vel = np.empty((len(states), 16)), np.empty(6)
+    for i, s in enumerate(states):
+        d.qpos[:] = qpos[i]
+        d.qvel[0:3] = rot[i] @ s[SLICES["base_linvel"]]  # free joint: world linear, body angular
+        d.qvel[3:6] = s[SLICES["base_angvel"]]
+        d.qvel[dof] = s[SLICES["joint_vel"]]
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_comVel(m, d)
+        for f, geom in enumerate(kin.foot_geoms):
+            out[i, f] = d.geom_xpos[geom, 2] - FOOT_RADIUS
+            mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_GEOM, geom, vel, 0)
+            out[i, 4 + 3 * f:7 + 3 * f] = vel[3:]
+    return out
 
 
 def mlp_best(x_tr: np.ndarray, y_tr: np.ndarray, x_va: np.ndarray, y_va: np.ndarray, epochs: int = 40,
@@ -71,6 +101,7 @@ def mlp_best(x_tr: np.ndarray, y_tr: np.ndarray, x_va: np.ndarray, y_va: np.ndar
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("datasets", nargs="+")
+    ap.add_argument("--foot-kinematics", action="store_true", help="add foot heights and velocities as inputs")
     args = ap.parse_args()
     fit_cfg = FitConfig().resolved()
     for path in args.datasets:
@@ -83,6 +114,8 @@ def main() -> None:
             rows = same_state_rows(data, resim, weights, fit_cfg.oracle_solver())
         gap = rows.solution.residual * weights
         x = np.c_[data.state[:, [STATE_NAMES.index(c) for c in DYNAMIC_INPUT_CHANNELS]], data.action]
+        if args.foot_kinematics:
+            x = np.c_[x, foot_kinematics(data.state)]
         ok = np.isfinite(gap).all(1) & ~rows.solution.diverged
         va = ok & is_val
         train_episodes = np.unique(data.episode[ok & ~is_val])

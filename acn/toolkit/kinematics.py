@@ -49,7 +49,8 @@ class RobotKinematics:
         self._qadr = np.array([m.jnt_qposadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, URDF_JOINT[j])]
                                for j in JOINT_NAMES])
         # The toe links are merged into the calves: a foot is the sphere geom ``<foot>_foot``.
-        self._feet = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, f"{f}_foot") for f in FOOT_NAMES])
+        self.foot_geoms = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, f"{f}_foot")
+                                    for f in FOOT_NAMES])  # geom ids of the foot spheres
 
     def qpos(self, states: np.ndarray) -> np.ndarray:
         """MuJoCo ``qpos`` rows (T, nq) for state vectors (T, 43)."""
@@ -78,4 +79,4 @@ class RobotKinematics:
             xquat[i] = d_xquat
             gpos[i] = d_gpos
         quat = xquat[:, self._bodies][..., [1, 2, 3, 0]]  # to (x, y, z, w)
-        return LinkPoses(self.links, xpos[:, self._bodies], quat, gpos[:, self._feet])
+        return LinkPoses(self.links, xpos[:, self._bodies], quat, gpos[:, self.foot_geoms])
