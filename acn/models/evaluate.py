@@ -57,6 +57,7 @@ from acn.toolkit.state import GROUPS, SLICES, STATE_NAMES
 
 HELD_OUT_SEED_OFFSET = 1_000_003  # evaluation initial states are never training ones
 RUNS: tuple[str, ...] = ("uncorrected", "corrected", "same_state_oracle", "tracking_oracle")
+TARGET_FALLS = ("target_fell", "target_diverged")  # episode ends that count as the target falling
 
 # Oracle channel weights when no training data is at hand: 1 / these typical spreads of the 33
 # output channels (std over the target states of `make demo`'s trot data, rounded).
@@ -206,7 +207,7 @@ def summarise(runs: dict[str, list[Episode]], output_channels: list[str], channe
             "eps_transfer": float((R_tgt - R_src).mean()),
             "reward_difference_stats": distribution_stats(diffs),
             "ends": [e.end for e in eps],
-            "target_falls": sum(e.end in ("target_fell", "target_diverged") for e in eps),
+            "target_falls": sum(e.end in TARGET_FALLS for e in eps),
             "steps": [len(e) for e in eps],
             "reward_gap_per_episode": np.abs(R_tgt - R_src).tolist(),  # |R_target - R_source|
             "divergence_per_episode": [float(x.mean()) for x in headline],
@@ -241,29 +242,30 @@ def versus(ref: dict, run: dict, reference: str) -> dict:
     """``run`` against ``ref`` (two ``summarise`` runs), episode by episode (module docstring)."""
     gap = episode_stats(np.subtract(ref["reward_gap_per_episode"], run["reward_gap_per_episode"]))
     div = episode_stats(np.subtract(ref["divergence_per_episode"], run["divergence_per_episode"]))
-    fell = lambda r: np.array([e in ("target_fell", "target_diverged") for e in r["ends"]])  # noqa: E731
+    fell = lambda r: np.isin(r["ends"], TARGET_FALLS)  # noqa: E731
     return {"reference": reference, "reward_gap_closer_by": gap, "divergence_lower_by": div,
             "new_falls": int((fell(run) & ~fell(ref)).sum()),
             "change": {"reward_gap": change(gap, "narrower", "wider"), "divergence": change(div, "lower", "higher")}}
 
 
-def verdict(cl: dict, run: str = "corrected", what: str = "the corrector") -> str:
-    """One sentence: ``run`` against its reference in ``cl`` (``summarise``'s result): reward gap,
-    divergence, falls, and the share of the same-state oracle's reward-gap reduction it reaches."""
-    r = cl["runs"][run]
+def verdict(cl: dict) -> str:
+    """One sentence: the corrected run against the uncorrected one in ``cl`` (``summarise``'s
+    result): reward gap, divergence, falls, and the share of the same-state oracle's reward-gap
+    reduction it reaches."""
+    r = cl["runs"]["corrected"]
     v = r["versus"]
     ref = cl["runs"][v["reference"]]
     g, d = v["reward_gap_closer_by"], v["divergence_lower_by"]
     mean = lambda x: float(np.mean(x))  # noqa: E731
     helps = v["change"]["reward_gap"] == "narrower" and not v["new_falls"]
-    text = (f"{what} {'narrows' if helps else 'does not narrow'} the transfer gap on {g['n']} held-out episode(s): "
+    text = (f"the corrector {'narrows' if helps else 'does not narrow'} the transfer gap on {g['n']} held-out episode(s): "
             f"reward gap |R_target - R_source| {mean(ref['reward_gap_per_episode']):.1f} -> "
             f"{mean(r['reward_gap_per_episode']):.1f} per episode ({v['change']['reward_gap']}: closer by "
             f"{g['mean']:.1f} +- {g['stderr']:.1f} stderr), divergence {ref['divergence']:.3g} -> {r['divergence']:.3g} "
             f"({v['change']['divergence']}: lower by {d['mean']:.3g} +- {d['stderr']:.2g}), "
             f"{v['new_falls'] or 'no'} new fall(s)")
     oracle = cl["runs"].get("same_state_oracle")
-    if oracle is not None and run != "same_state_oracle":
+    if oracle is not None:
         reach = mean(ref["reward_gap_per_episode"]) - mean(oracle["reward_gap_per_episode"])
         text += f"; the same-state oracle's reward gap {mean(oracle['reward_gap_per_episode']):.1f}"
         if reach > 0:
