@@ -23,7 +23,9 @@ JSON keys (the machine-readable contract):
   held-out initial states (``transfer``): ``runs`` by name (``uncorrected`` = the model as
   given, or ``as given`` when its file carries a corrector; ``corrected`` = with
   ``--corrector``, ``with effects`` = the final model, the oracles), each with ``divergence``, ``divergence_by_group``, ``divergence_curve``,
-  ``eps_transfer``, ``target_falls``; ``models`` (what each run ran), ``robot``.
+  ``eps_transfer``, ``target_falls``, ``reward_gap_per_episode`` and (all but the first run)
+  ``versus``: against the first run, episode by episode (``acn.models.evaluate.versus``);
+  ``models`` (what each run ran), ``robot``.
 """
 
 from __future__ import annotations
@@ -243,8 +245,8 @@ def write_html(d: Diagnosis, path: str | Path) -> Path:
         for name, r in loop["runs"].items()) if loop else ""
     loop_html = (f"<h2>Closed loop: the model beside the robot</h2><p>{len(loop['horizon_steps'])} held-out episode(s); "
                  f"the robot's return {loop['return_source']:.1f}; eps_transfer = mean (R_model - R_robot), the paper's "
-                 "reward; reward gap = mean |R_model - R_robot| per episode, closer by = than the first run, per "
-                 "episode from the same start, +- its standard error.</p><table><tr><th>run</th><th>divergence</th>"
+                 "reward; reward gap = mean |R_model - R_robot| per episode; closer by = how much smaller the reward gap "
+                 "is than the first run's, episode by episode from the same starts, +- its standard error.</p><table><tr><th>run</th><th>divergence</th>"
                  "<th>eps_transfer</th><th>reward gap</th><th>closer by</th><th>falls</th><th>model</th>"
                  f"</tr>{loop_rows}</table>") if loop else ""
     ranking = "".join(

@@ -135,7 +135,7 @@ def table(result: dict) -> str:
                      f"{r['target_falls']}/{len(r['ends'])}"])
     width = [max(len(row[i]) for row in rows) for i in range(len(head))]
     lines = [f"closed loop, model vs the robot (return of the robot {result['return_source']:.1f}; reward gap: "
-             "mean |R_model - R_robot| per episode; closer by: than the first run, +- stderr):"]
+             "mean |R_model - R_robot| per episode; gap closer by: how much smaller than the first run's, +- stderr):"]
     lines += ["  " + "  ".join(c.ljust(w) for c, w in zip(row, width)) for row in rows]
     lines += [f"  {k}: {v}" for k, v in result["models"].items()]
     return "\n".join(lines)
