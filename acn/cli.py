@@ -268,7 +268,13 @@ def fit_parser() -> argparse.ArgumentParser:
     p.add_argument("--round-episodes", type=_positive_int, default=d.round_episodes)
     p.add_argument("--round-seconds", type=_positive_float, default=d.round_seconds)
     p.add_argument("--round-epochs", type=_positive_int, default=d.round_epochs)
+    p.add_argument("--label-fd-eps", type=_positive_float, default=d.label_fd_eps,
+                   help="inverse: finite-difference step on actions in the label solve (action units)")
+    p.add_argument("--sensor-inputs", action=argparse.BooleanOptionalAction, default=d.sensor_inputs,
+                   help="F also reads the contact and IMU readings (default: on for paper and mujoco-jacobian)")
     p.add_argument("--threads", type=_positive_int, default=d.threads, help="re-simulation threads")
+    p.add_argument("--train-threads", type=_positive_int, default=d.train_threads,
+                   help="torch threads in training (default 1: more is faster only on an otherwise idle machine)")
     p.add_argument("--calibrate", action=argparse.BooleanOptionalAction, default=d.calibrate,
                    help="scale F by 0, 0.25, ... 1, whichever leaves the least one-step error on half of the held-out "
                    "episodes (default: on for inverse)")
@@ -297,7 +303,9 @@ def fit_main(argv: list[str] | None = None) -> int:
                         label_state_weight=args.label_state_weight, oracle_iterations=args.oracle_iterations,
                         lr_schedule=args.lr_schedule,
                         round_episodes=args.round_episodes, round_seconds=args.round_seconds,
-                        round_epochs=args.round_epochs, threads=args.threads, calibrate=args.calibrate)
+                        round_epochs=args.round_epochs, threads=args.threads, calibrate=args.calibrate,
+                        label_fd_eps=args.label_fd_eps, sensor_inputs=args.sensor_inputs,
+                        train_threads=args.train_threads)
         with _ray_executor(args, "acn-fit"):
             model, metrics = fit(args.datasets, cfg, log=lambda line: print(line, file=sys.stderr))
         path = save(model, metrics, args.out, overwrite=args.overwrite)

@@ -324,9 +324,12 @@ def _fit_cli(*args: str) -> subprocess.CompletedProcess:
 def test_fit_cli_end_to_end_and_bad_input(paired, tmp_path):
     r = _fit_cli(str(paired), "--out", str(tmp_path / "m"), "--epochs", "3", "--eval-episodes", "1",
                  "--eval-seconds", "0.3", "--label-iterations", "1", "--label-broyden", "0", "--oracle-iterations", "1",
-                 "--rounds", "0")
+                 "--rounds", "0", "--train-threads", "2", "--label-fd-eps", "0.02", "--sensor-inputs")
     assert r.returncode == 0, r.stderr
     assert "divergence_reduction=" in r.stdout and (tmp_path / "m" / "model.safetensors").is_file()
+    assert "verdict: the corrector" in r.stdout
+    fit_cfg = json.loads((tmp_path / "m" / "config.json").read_text())["fit"]  # every hyper-parameter a flag
+    assert (fit_cfg["train_threads"], fit_cfg["label_fd_eps"], fit_cfg["sensor_inputs"]) == (2, 0.02, True)
     assert "share_of_oracle=" in r.stdout and "label_rows_per_s=" in r.stderr
     assert "same-state oracle" in r.stdout and "tracking oracle" in r.stdout  # printed beside the corrector
     for args, msg in [
