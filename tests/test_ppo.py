@@ -39,7 +39,9 @@ def corrector_dir(tmp_path_factory):
     which the 2 x 1 s ``small_dataset`` cannot give after the validation split)."""
     root = tmp_path_factory.mktemp("ppo_data")
     data = record(CollectConfig(target="mujoco", policy="trot", episodes=3, seconds=1.2, seed=11), root / "paired")
-    model, metrics = fit([data], FitConfig(epochs=2, eval_episodes=0), log=lambda s: None)
+    # No closed-loop rounds and one-step labels: what the test needs is a real corrector file, fast.
+    model, metrics = fit([data], FitConfig(epochs=2, eval_episodes=0, rounds=0, label_iterations=1, label_broyden=0),
+                         log=lambda s: None)
     return save(model, metrics, root / "corrector")
 
 
