@@ -328,6 +328,9 @@ def test_fit_cli_end_to_end_and_bad_input(paired, tmp_path):
     assert r.returncode == 0, r.stderr
     assert "divergence_reduction=" in r.stdout and (tmp_path / "m" / "model.safetensors").is_file()
     assert "verdict: the corrector" in r.stdout
+    # One evaluation episode never shows a clear change, and the physics answer is suggested beside it.
+    assert "verdict: the corrector does not narrow" in r.stdout
+    assert f"acn-diagnose {paired} --side source --model mujoco --auto --closed-loop 4" in r.stdout
     fit_cfg = json.loads((tmp_path / "m" / "config.json").read_text())["fit"]  # every hyper-parameter a flag
     assert (fit_cfg["train_threads"], fit_cfg["label_fd_eps"], fit_cfg["sensor_inputs"]) == (2, 0.02, True)
     assert "share_of_oracle=" in r.stdout and "label_rows_per_s=" in r.stderr
