@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
+import shlex
 import sys
 from pathlib import Path
 from typing import Callable, Iterator, NoReturn
@@ -310,8 +311,9 @@ def fit_main(argv: list[str] | None = None) -> int:
             model, metrics = fit(args.datasets, cfg, log=lambda line: print(line, file=sys.stderr))
         path = save(model, metrics, args.out, overwrite=args.overwrite)
         target = (model.config["training_data"]["target"] or {}).get("simulator")
-        physics = (f"acn-diagnose {args.datasets[0]} --side source --model {target} --auto --closed-loop 4 "
-                   f"--corrector {path}") if len(args.datasets) == 1 else None
+        physics = shlex.join(["acn-diagnose", str(args.datasets[0]), "--side", "source", "--model", str(target),
+                              "--auto", "--closed-loop", "4", "--corrector", str(path)]) \
+            if len(args.datasets) == 1 else None
         _print_fit_summary(metrics, path, physics)
         return 0
 
