@@ -38,11 +38,10 @@ from acn.datasets.record import config_from_metadata
 from acn.models.acn import DYNAMIC_INPUT_CHANNELS, OUTPUT_CHANNELS, mlp
 from acn.models.evaluate import output_spread
 from acn.models.fit import FitConfig, same_state_rows, split_episodes
+from acn.toolkit.backends.mujoco_backend import PhysicsLayout
 from acn.toolkit.kinematics import FOOT_RADIUS, RobotKinematics
 from acn.toolkit.resim import Resimulator
-from acn.toolkit.robot import URDF_JOINT
-from acn.toolkit.rotations import rpy_to_matrices
-from acn.toolkit.state import GROUPS, JOINT_NAMES, SLICES, STATE_NAMES
+from acn.toolkit.state import GROUPS, STATE_NAMES
 
 
 def r2(pred: np.ndarray, y: np.ndarray, mean: np.ndarray) -> float:
@@ -59,14 +58,11 @@ def foot_kinematics(states: np.ndarray) -> np.ndarray:
     """(T, 16): the 4 feet's heights above the ground (m), then their world velocities (m/s)."""
     kin = RobotKinematics()
     m, d = kin.model, kin.data
-    qpos, rot = kin.qpos(states), rpy_to_matrices(states[:, SLICES["base_rpy"]])
-    dof = [m.jnt_dofadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, URDF_JOINT[j])] for j in JOINT_NAMES]
+    layout = PhysicsLayout(m)
+    physics = layout.to_physics(states, np.zeros(12))  # [time, qpos, qvel] rows, as the backend writes them
     out, vel = np.empty((len(states), 16)), np.empty(6)
-    for i, s in enumerate(states):
-        d.qpos[:] = qpos[i]
-        d.qvel[0:3] = rot[i] @ s[SLICES["base_linvel"]]  # free joint: world linear, body angular
-        d.qvel[3:6] = s[SLICES["base_angvel"]]
-        d.qvel[dof] = s[SLICES["joint_vel"]]
+    for i, row in enumerate(physics):
+        d.qpos[:], d.qvel[:] = row[1:1 + layout.nq], row[1 + layout.nq:]
         mujoco.mj_kinematics(m, d)
         mujoco.mj_comPos(m, d)
         mujoco.mj_comVel(m, d)
