@@ -276,6 +276,8 @@ def fit_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=_positive_int, default=d.threads, help="re-simulation threads")
     p.add_argument("--train-threads", type=_positive_int, default=d.train_threads,
                    help="torch threads in training (default 1: more is faster only on an otherwise idle machine)")
+    p.add_argument("--cuda-graph", action=argparse.BooleanOptionalAction, default=d.cuda_graph,
+                   help="with --device cuda: replay each full-batch training step as one CUDA graph (default on)")
     p.add_argument("--calibrate", action=argparse.BooleanOptionalAction, default=d.calibrate,
                    help="scale F by 0, 0.25, ... 1, whichever leaves the least one-step error on half of the held-out "
                    "episodes (default: on for inverse)")
@@ -306,7 +308,7 @@ def fit_main(argv: list[str] | None = None) -> int:
                         round_episodes=args.round_episodes, round_seconds=args.round_seconds,
                         round_epochs=args.round_epochs, threads=args.threads, calibrate=args.calibrate,
                         label_fd_eps=args.label_fd_eps, sensor_inputs=args.sensor_inputs,
-                        train_threads=args.train_threads)
+                        train_threads=args.train_threads, cuda_graph=args.cuda_graph)
         with _ray_executor(args, "acn-fit"):
             model, metrics = fit(args.datasets, cfg, log=lambda line: print(line, file=sys.stderr))
         path = save(model, metrics, args.out, overwrite=args.overwrite)

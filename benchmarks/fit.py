@@ -21,6 +21,13 @@ label_rows_per_s         Gauss-Newton same-state labels (acn.models.labels.solve
 label_simulator_share    the share of the labelling time spent inside the re-simulation (MuJoCo)
 label_thread_scaling     label_rows_per_s with 2 threads / with 1
 
+With --device cuda (a GPU), the same loops on the GPU instead, no labelling:
+cuda_baseline_samples_per_s  the authors' loop with its tensors on the GPU
+cuda_fit_samples_per_s       acn-fit's loop, each full-batch step replayed as one CUDA graph
+cuda_fit_eager_samples_per_s acn-fit's loop launched from Python (--no-cuda-graph)
+cuda_fit_speedup             cuda_fit / cuda_baseline;  cuda_graph_speedup  cuda_fit / cuda_fit_eager
+cuda_inverse_samples_per_s   acn-fit's loop with inverse's network and batch (512 wide, batch 64)
+
 Data: synthetic rows with the real shapes (40 state + 12 action inputs, 33 residual channels):
 speed does not depend on the values. Usage: python benchmarks/fit.py [--samples 100000]
 """
@@ -29,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import replace
 
 import torch
 from torch.utils.data import DataLoader, Dataset
@@ -61,21 +69,25 @@ def paper_loss(delta_a: torch.Tensor, jacobian: torch.Tensor, residual: torch.Te
     return fit + lambda_l1 * delta_a.abs().sum(dim=1).mean(), fit
 
 
-def baseline(model: Corrector, x: torch.Tensor, r: torch.Tensor, epochs: int) -> float:
+def baseline(model: Corrector, x: torch.Tensor, r: torch.Tensor, epochs: int, device: str = "cpu") -> float:
     ds = PerSampleDataset(x[:, :-N_ACT].clone(), x[:, -N_ACT:].clone(), r.clone())
     loader = DataLoader(ds, batch_size=256, shuffle=True)
+    model.net.to(device)
     opt = torch.optim.Adam(model.net.parameters(), lr=1e-3)
     model.net.train()
     t, n = time.perf_counter(), 0
     for _ in range(epochs):
         for batch in loader:
-            inp = torch.cat([batch["state"], batch["action"]], dim=-1)
+            inp = torch.cat([batch["state"], batch["action"]], dim=-1).to(device, non_blocking=True)
+            batch["delta_s"] = batch["delta_s"].to(device, non_blocking=True)
             delta_a, jac = model.net(inp)
             loss, _ = paper_loss(delta_a, jac, batch["delta_s"], 0.01)
             opt.zero_grad()
             loss.backward()
             opt.step()
             n += len(inp)
+    if device != "cpu":
+        torch.cuda.synchronize()
     return n / (time.perf_counter() - t)
 
 
@@ -101,9 +113,12 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=100_000)
     ap.add_argument("--epochs", type=int, default=2)
     ap.add_argument("--label-rows", type=int, default=500)
+    ap.add_argument("--device", default="cpu", help="cpu, or cuda: the GPU loops instead (no labelling)")
     args = ap.parse_args()
     torch.manual_seed(0)
     x, r = torch.randn(args.samples, N_IN), torch.randn(args.samples, N_OUT)
+    if args.device != "cpu":
+        return gpu(x, r, args.epochs, args.device)
     make = lambda: Corrector(default_config("paper", 256, 2))  # noqa: E731
     base = baseline(make(), x, r, args.epochs)
     with torch_threads(1):
@@ -128,6 +143,44 @@ def main() -> None:
     print(f"torch_threads={torch.get_num_threads()}")
     print(f"fit_bf16={int(cfg.use_bf16())}")
     labelling(args.label_rows)
+
+
+def gpu(x: torch.Tensor, r: torch.Tensor, epochs: int, device: str) -> None:
+    """The authors' loop and acn-fit's (graphed and eager) on the GPU, same data and network."""
+    if not torch.cuda.is_available():
+        raise SystemExit("--device cuda: no CUDA device is available")
+    make = lambda: Corrector(default_config("paper", 256, 2))  # noqa: E731
+    n = len(x)
+
+    def ours(cfg: FitConfig, model: Corrector, split: Split) -> float:
+        split, b = split.to(device), cfg.resolved().batch_size
+        model.net.to(device)
+        warm = Split(*(None if t is None else t[:4 * b] for t in (split.x, split.residual, split.jacobian, split.label)),
+                     split.scale)
+        train(model, warm, cfg, epochs=1)  # CUDA context, kernels, cuBLAS handles
+        torch.cuda.synchronize()
+        t = time.perf_counter()
+        train(model, split, cfg)
+        torch.cuda.synchronize()
+        return n * cfg.epochs / (time.perf_counter() - t)
+
+    base = baseline(make(), x, r, epochs, device)
+    paper = FitConfig(variant="paper", epochs=epochs, device=device)
+    graphed = ours(paper, make(), Split(x, r, None))
+    eager = ours(replace(paper, cuda_graph=False), make(), Split(x, r, None))
+    inv_model = Corrector(default_config("inverse", 512, 2))
+    n_in = inv_model.net.action_net[0].in_features
+    inverse = FitConfig(variant="inverse", epochs=epochs, device=device)  # its defaults: 512 wide, batch 64, cosine
+    inv = ours(inverse, inv_model, Split(x[:, :n_in].contiguous(), r, torch.randn(n, N_OUT, N_ACT),
+                                          torch.randn(n, N_ACT), torch.ones(N_ACT)))
+    print(f"device={torch.cuda.get_device_name()}")
+    print(f"cuda_baseline_samples_per_s={base:.0f}")
+    print(f"cuda_fit_samples_per_s={graphed:.0f}")
+    print(f"cuda_fit_eager_samples_per_s={eager:.0f}")
+    print(f"cuda_fit_speedup={graphed / base:.2f}")
+    print(f"cuda_graph_speedup={graphed / eager:.2f}")
+    print(f"cuda_inverse_samples_per_s={inv:.0f}")
+    print(f"fit_bf16={int(paper.use_bf16())}")
 
 
 def labelling(rows: int) -> None:

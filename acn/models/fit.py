@@ -90,6 +90,7 @@ class FitConfig:
     device: str = "cpu"
     precision: str = "auto"         # bf16 weights and matmuls in training where the CPU/GPU has bf16 natively
     train_threads: int | None = 1   # torch threads in training (None: torch's default; see corrector.torch_threads)
+    cuda_graph: bool = True         # on a GPU, replay each full-batch training step as one CUDA graph
     jacobian_eps: float = 0.01      # action units (rad for joint targets), mujoco-jacobian's central differences
     # inverse: the Gauss-Newton labels (acn.models.labels.SolveConfig) and the loss
     label_iterations: int = 2       # LM steps with a finite-difference Jacobian
@@ -323,39 +324,91 @@ def _train(model: Corrector, tr: Split, cfg: FitConfig, on_epoch, epochs: int) -
     net.train()
     dev = tr.x.device
     dtype = torch.bfloat16 if cfg.use_bf16() else torch.float32
+    graphed = dev.type == "cuda" and cfg.cuda_graph
     flat = FlatMLPs([n for n in (net.action_net, net.jacobian_net) if n is not None], dtype)
     try:
-        opt = torch.optim.Adam([flat.master], lr=cfg.lr, fused=True)
+        # A graph replays the learning rate from a tensor it reads; eagerly it is a float.
+        lr = torch.tensor(cfg.lr, device=dev) if graphed else cfg.lr
+        opt = torch.optim.Adam([flat.master], lr=lr, fused=True, capturable=graphed)
         gen = torch.Generator(device="cpu").manual_seed(cfg.seed)
         history, n, b = [], len(tr), cfg.batch_size
         steps = epochs * ((n + b - 1) // b)
-        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps) if cfg.lr_schedule == "cosine" else None
         whole = replace(tr, x=tr.x.to(dtype))  # cast once, not per batch
         rows = {k: t for k in ("x", "residual", "jacobian", "label") if (t := getattr(whole, k)) is not None}
         buffers = {k: t.new_empty((b, *t.shape[1:])) for k, t in rows.items()}
+        total, index = torch.zeros((), device=dev), torch.empty(b, dtype=torch.long, device=dev)
+
+        def step(idx: torch.Tensor) -> None:
+            """One Adam step on rows ``idx`` (at most a batch); adds the batch's summed loss to ``total``."""
+            m = len(idx)
+            batch = replace(whole, **{k: torch.index_select(t, 0, idx, out=buffers[k][:m]) for k, t in rows.items()})
+            loss = flat.step(batch.x, lambda out: _batch_loss(
+                out[0], out[1].view(m, net.n_out, net.n_action) if len(out) > 1 else None, batch, cfg)[0])
+            opt.step()
+            flat.sync()
+            total.add_(loss, alpha=m)
+
+        full_batch = GraphedStep(lambda: step(index)) if graphed else None
+        k = 0
         for epoch in range(epochs):
             perm = torch.randperm(n, generator=gen).to(dev)
-            total, count = torch.zeros((), device=dev), 0
+            total.zero_()
             for i in range(0, n, b):
+                if cfg.lr_schedule == "cosine":  # CosineAnnealingLR's closed form (eta_min 0, T_max = all steps)
+                    _set_lr(opt, cfg.lr * 0.5 * (1.0 + math.cos(math.pi * k / steps)))
                 idx = perm[i:i + b]
-                m = len(idx)
-                batch = replace(whole, **{k: torch.index_select(t, 0, idx, out=buffers[k][:m])
-                                          for k, t in rows.items()})
-                loss = flat.step(batch.x, lambda out: _batch_loss(
-                    out[0], out[1].view(m, net.n_out, net.n_action) if len(out) > 1 else None, batch, cfg)[0])
-                opt.step()
-                flat.sync()
-                if sched is not None:
-                    sched.step()
-                total.add_(loss, alpha=m)
-                count += m
-            history.append({"epoch": epoch + 1, "train_loss": float(total) / count})
+                if full_batch is not None and len(idx) == b:
+                    index.copy_(idx)
+                    full_batch()
+                else:
+                    step(idx)
+                k += 1
+            history.append({"epoch": epoch + 1, "train_loss": float(total) / n})
             if on_epoch:
                 on_epoch(history[-1])
     finally:
         flat.restore()
         net.eval()
     return history
+
+
+def _set_lr(opt: torch.optim.Optimizer, lr: float) -> None:
+    for group in opt.param_groups:
+        if isinstance(group["lr"], torch.Tensor):
+            group["lr"].fill_(lr)  # in place: a captured graph reads this tensor
+        else:
+            group["lr"] = lr
+
+
+class GraphedStep:
+    """``fn()`` (one training step on static buffers) run through a CUDA graph.
+
+    On a GPU a step of these small networks is ~40 kernels of a few microseconds each, so launching
+    them from Python costs more than running them. The first ``warmup`` calls run eagerly on a side
+    stream (real steps: they allocate the optimiser state and autograd's buffers, as capture
+    requires); the next call captures the step once and every call replays it. ``fn`` must read its
+    inputs from and write its results to tensors that live across calls.
+    """
+
+    def __init__(self, fn, warmup: int = 3) -> None:
+        self.fn, self.warmup, self.calls, self.graph = fn, warmup, 0, None
+
+    def __call__(self) -> None:
+        if self.graph is not None:
+            self.graph.replay()
+            return
+        side = torch.cuda.Stream()
+        side.wait_stream(torch.cuda.current_stream())
+        if self.calls < self.warmup:
+            with torch.cuda.stream(side):
+                self.fn()
+            torch.cuda.current_stream().wait_stream(side)
+            self.calls += 1
+            return
+        self.graph = torch.cuda.CUDAGraph()
+        with torch.cuda.graph(self.graph):
+            self.fn()
+        self.graph.replay()  # capture records the step; the replay runs it
 
 
 @torch.no_grad()
