@@ -21,7 +21,8 @@ label_rows_per_s         Gauss-Newton same-state labels (acn.models.labels.solve
 label_simulator_share    the share of the labelling time spent inside the re-simulation (MuJoCo)
 label_thread_scaling     label_rows_per_s with 2 threads / with 1
 
-With --device cuda (a GPU), the same loops on the GPU instead, no labelling:
+With --device cuda, the same loops on the GPU instead of the CPU and no labelling (without the
+flag, these lines follow the CPU's wherever torch sees a GPU):
 cuda_baseline_samples_per_s  the authors' loop with its tensors on the GPU
 cuda_fit_samples_per_s       acn-fit's loop, each full-batch step replayed as one CUDA graph
 cuda_fit_eager_samples_per_s acn-fit's loop launched from Python (--no-cuda-graph)
@@ -143,6 +144,8 @@ def main() -> None:
     print(f"torch_threads={torch.get_num_threads()}")
     print(f"fit_bf16={int(cfg.use_bf16())}")
     labelling(args.label_rows)
+    if torch.cuda.is_available():  # `make bench` on a machine with a GPU measures it too
+        gpu(x, r, args.epochs, "cuda")
 
 
 def gpu(x: torch.Tensor, r: torch.Tensor, epochs: int, device: str) -> None:
