@@ -4,6 +4,8 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 OUT ?= out
+# Test processes (pytest-xdist); the Ray tests stay together on one of them (xdist_group "ray").
+TEST_WORKERS ?= 2
 export HF_HUB_OFFLINE := 1
 
 .PHONY: demo test bench install clean
@@ -47,7 +49,7 @@ demo: $(STAMP)
 	@echo "diagnosis view (measured vs model, residuals, error as effects are added): rerun $(OUT)/hidden.rrd"
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadgroup
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/collect.py

@@ -21,6 +21,7 @@ import pytest
 from conftest import load
 
 pytest.importorskip("ray")
+pytestmark = pytest.mark.xdist_group("ray")  # `make test` runs tests on 2 workers: one Ray instance, on one of them
 
 from acn.datasets.record import record  # noqa: E402
 from acn.toolkit import parallel  # noqa: E402
