@@ -324,7 +324,8 @@ def _fit_cli(*args: str) -> subprocess.CompletedProcess:
 def test_fit_cli_end_to_end_and_bad_input(paired, tmp_path):
     r = _fit_cli(str(paired), "--out", str(tmp_path / "m"), "--epochs", "3", "--eval-episodes", "1",
                  "--eval-seconds", "0.3", "--label-iterations", "1", "--label-broyden", "0", "--oracle-iterations", "1",
-                 "--rounds", "0", "--train-threads", "2", "--label-fd-eps", "0.02", "--sensor-inputs")
+                 "--rounds", "0", "--train-threads", "2", "--label-fd-eps", "0.02", "--sensor-inputs",
+                 "--no-cuda-graph")
     assert r.returncode == 0, r.stderr
     assert "divergence_reduction=" in r.stdout and (tmp_path / "m" / "model.safetensors").is_file()
     assert "verdict: the corrector" in r.stdout
@@ -332,7 +333,8 @@ def test_fit_cli_end_to_end_and_bad_input(paired, tmp_path):
     assert "verdict: the corrector does not narrow" in r.stdout
     assert f"acn-diagnose {paired} --side source --model mujoco --auto --closed-loop 4" in r.stdout
     fit_cfg = json.loads((tmp_path / "m" / "config.json").read_text())["fit"]  # every hyper-parameter a flag
-    assert (fit_cfg["train_threads"], fit_cfg["label_fd_eps"], fit_cfg["sensor_inputs"]) == (2, 0.02, True)
+    assert (fit_cfg["train_threads"], fit_cfg["label_fd_eps"], fit_cfg["sensor_inputs"], fit_cfg["cuda_graph"]) \
+        == (2, 0.02, True, False)
     assert "share_of_oracle=" in r.stdout and "label_rows_per_s=" in r.stderr
     assert "same-state oracle" in r.stdout and "tracking oracle" in r.stdout  # printed beside the corrector
     for args, msg in [

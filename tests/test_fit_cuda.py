@@ -23,11 +23,15 @@ def _split(variant: str, n: int, n_in: int) -> Split:
     return Split(x, r, torch.randn(n, 33, 12, generator=g), torch.randn(n, 12, generator=g), torch.ones(12)).to("cuda")
 
 
+@pytest.mark.parametrize("precision", ["fp32", "bf16"])
 @pytest.mark.parametrize("variant", ["paper", "inverse"])
-def test_graphed_steps_train_as_eager_ones(variant):
+def test_graphed_steps_train_as_eager_ones(variant, precision):
     # 1000 rows: full batches replayed, the last partial batch of each epoch launched eagerly;
-    # inverse: its cosine learning rate, read by the graph from a tensor.
-    cfg = FitConfig(variant=variant, epochs=3, device="cuda", precision="fp32", hidden=64,
+    # inverse: its cosine learning rate, read by the graph from a tensor. bf16: weights and
+    # matmuls in bf16, Adam on the float32 master (the same kernels either way).
+    if precision == "bf16" and not torch.cuda.is_bf16_supported():
+        pytest.skip("no bf16 on this GPU")
+    cfg = FitConfig(variant=variant, epochs=3, device="cuda", precision=precision, hidden=64,
                     batch_size=128)
     params, losses = {}, {}
     for graphed in (True, False):
@@ -41,6 +45,7 @@ def test_graphed_steps_train_as_eager_ones(variant):
         params[graphed] = torch.cat([p.detach().flatten() for p in model.net.parameters()])
         losses[graphed] = [h["train_loss"] for h in history]
     assert losses[True][-1] < losses[True][0]  # it learns
-    assert losses[True] == pytest.approx(losses[False], rel=1e-4)
-    torch.testing.assert_close(params[True], params[False], rtol=1e-4, atol=1e-5)
+    rel = 1e-4 if precision == "fp32" else 1e-2  # cuBLAS may pick other bf16 kernels inside a graph
+    assert losses[True] == pytest.approx(losses[False], rel=rel)
+    torch.testing.assert_close(params[True], params[False], rtol=rel, atol=rel / 10)
     assert not torch.equal(params[True], torch.zeros_like(params[True]))
