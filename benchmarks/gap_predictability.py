@@ -20,7 +20,12 @@ these rows reproduces: a ceiling for what a learned corrector can remove, where 
 share is a ceiling only for a corrector that knows the row. If it stays low and grows slowly
 with the data, the gap is not a function of (s, a) that these data pin down.
 
-Usage: python benchmarks/gap_predictability.py [--foot-kinematics] DATASET [DATASET ...]
+``--gap-only`` takes the gap from one re-simulation per row instead of the oracle's solve (the
+solve's first step computes exactly that), so large datasets cost seconds; ``--save-rows F.npz``
+keeps the rows, and an .npz given instead of a dataset trains on them where only torch is
+installed (``--device cuda``, ``--hidden``, ``--epochs``, ``--fractions``).
+
+Usage: python benchmarks/gap_predictability.py [--foot-kinematics] [--gap-only] DATASET|ROWS.npz ...
 Prints name=value lines per dataset (its directory name as prefix).
 """
 
@@ -29,18 +34,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import mujoco
 import numpy as np
 import torch
 
-from acn.datasets.reader import load_paired
-from acn.datasets.record import config_from_metadata
 from acn.models.acn import DYNAMIC_INPUT_CHANNELS, OUTPUT_CHANNELS, mlp
-from acn.models.evaluate import output_spread
-from acn.models.fit import FitConfig, same_state_rows, split_episodes
-from acn.toolkit.backends.mujoco_backend import PhysicsLayout
-from acn.toolkit.kinematics import FOOT_RADIUS, RobotKinematics
-from acn.toolkit.resim import Resimulator
 from acn.toolkit.state import GROUPS, STATE_NAMES
 
 
@@ -56,6 +53,11 @@ def ridge(x_tr: np.ndarray, y_tr: np.ndarray, x: np.ndarray, lam: float = 1.0) -
 
 def foot_kinematics(states: np.ndarray) -> np.ndarray:
     """(T, 16): the 4 feet's heights above the ground (m), then their world velocities (m/s)."""
+    import mujoco
+
+    from acn.toolkit.backends.mujoco_backend import PhysicsLayout
+    from acn.toolkit.kinematics import FOOT_RADIUS, RobotKinematics
+
     kin = RobotKinematics()
     m, d = kin.model, kin.data
     layout = PhysicsLayout(m)
@@ -74,54 +76,98 @@ def foot_kinematics(states: np.ndarray) -> np.ndarray:
 
 
 def mlp_best(x_tr: np.ndarray, y_tr: np.ndarray, x_va: np.ndarray, y_va: np.ndarray, epochs: int = 40,
-             seed: int = 0) -> tuple[float, int]:
+             seed: int = 0, hidden: int = 256, device: str = "cpu") -> tuple[float, int]:
     """(best held-out R^2, its epoch) of acn's MLP regressing y on x."""
     torch.manual_seed(seed)
-    rng = np.random.default_rng(seed)
-    net = mlp(x_tr.shape[1], 256, y_tr.shape[1])
+    gen = torch.Generator().manual_seed(seed)
+    net = mlp(x_tr.shape[1], hidden, y_tr.shape[1]).to(device)
     opt = torch.optim.Adam(net.parameters(), lr=1e-3)
-    xt, yt, xv = (torch.tensor(a, dtype=torch.float32) for a in (x_tr, y_tr, x_va))
+    xt, yt, xv = (torch.tensor(a, dtype=torch.float32, device=device) for a in (x_tr, y_tr, x_va))
     best = (-np.inf, 0)
     for epoch in range(1, epochs + 1):
-        for b in np.array_split(rng.permutation(len(xt)), max(1, len(xt) // 128)):
+        for b in torch.randperm(len(xt), generator=gen).to(device).split(128):
             loss = (net(xt[b]) - yt[b]).pow(2).mean()
             opt.zero_grad()
             loss.backward()
             opt.step()
         with torch.no_grad():
-            score = r2(net(xv).numpy(), y_va, y_tr.mean(0))
+            score = r2(net(xv).cpu().numpy(), y_va, y_tr.mean(0))
         best = max(best, (score, epoch))
     return best
 
 
+def gap_rows(path: str, foot: bool, gap_only: bool) -> dict[str, np.ndarray]:
+    """Inputs (33 dynamic state channels, action[, foot kinematics]) and weighted same-state gap of
+    every row of a paired dataset, with its episode, held-out mask and usable mask.
+
+    ``gap_only``: the gap from one re-simulation per row (what the solve computes first), not the
+    oracle's solve: 40x fewer re-simulations, no ``oracle_removed``.
+    """
+    from acn.datasets.reader import load_paired
+    from acn.datasets.record import config_from_metadata
+    from acn.models.evaluate import output_spread
+    from acn.models.fit import FitConfig, same_state_rows, split_episodes
+    from acn.models.oracle import OUTPUT_INDEX
+    from acn.models.sensitivity import channel_difference
+    from acn.toolkit.resim import Resimulator
+
+    fit_cfg = FitConfig().resolved()
+    data = load_paired([path])
+    is_val = split_episodes(data.episode, fit_cfg.val_fraction, fit_cfg.seed)
+    weights = 1.0 / output_spread(data.subset(~is_val).target_state)
+    cfg = config_from_metadata(data.info)
+    out = {}
+    with Resimulator(cfg.target, cfg.sim) as resim:
+        if gap_only:
+            p = resim.run(data.state, data.action)
+            residual = channel_difference(data.next_state[:, OUTPUT_INDEX], p.state[:, 0, OUTPUT_INDEX], OUTPUT_INDEX)
+            diverged = p.diverged
+        else:
+            rows = same_state_rows(data, resim, weights, fit_cfg.oracle_solver())
+            residual, diverged = rows.solution.residual, rows.solution.diverged
+            va = is_val & ~diverged
+            out["oracle_removed"] = np.array(1 - rows.solution.error_after[va].sum() / rows.solution.error_before[va].sum())
+    gap = residual * weights
+    x = np.c_[data.state[:, [STATE_NAMES.index(c) for c in DYNAMIC_INPUT_CHANNELS]], data.action]
+    if foot:
+        x = np.c_[x, foot_kinematics(data.state)]
+    ok = np.isfinite(gap).all(1) & ~diverged
+    return out | {"x": x.astype(np.float32), "gap": np.nan_to_num(gap).astype(np.float32), "episode": data.episode,
+                  "is_val": is_val, "ok": ok}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("datasets", nargs="+")
+    ap.add_argument("sources", nargs="+", help="paired datasets, or .npz files of rows written by --save-rows")
     ap.add_argument("--foot-kinematics", action="store_true", help="add foot heights and velocities as inputs")
+    ap.add_argument("--gap-only", action="store_true", help="gap from one re-simulation per row, no oracle solve")
+    ap.add_argument("--save-rows", help="write each dataset's rows to this .npz (one dataset) and go on")
+    ap.add_argument("--fractions", default="0.25,0.5,1", help="shares of the training episodes to train on")
+    ap.add_argument("--hidden", type=int, default=256, help="MLP width")
+    ap.add_argument("--epochs", type=int, default=40)
+    ap.add_argument("--device", default="cpu", help="where the MLP trains")
     args = ap.parse_args()
-    fit_cfg = FitConfig().resolved()
-    for path in args.datasets:
-        name = Path(path).name
-        data = load_paired([path])
-        is_val = split_episodes(data.episode, fit_cfg.val_fraction, fit_cfg.seed)
-        weights = 1.0 / output_spread(data.subset(~is_val).target_state)
-        cfg = config_from_metadata(data.info)
-        with Resimulator(cfg.target, cfg.sim) as resim:
-            rows = same_state_rows(data, resim, weights, fit_cfg.oracle_solver())
-        gap = rows.solution.residual * weights
-        x = np.c_[data.state[:, [STATE_NAMES.index(c) for c in DYNAMIC_INPUT_CHANNELS]], data.action]
-        if args.foot_kinematics:
-            x = np.c_[x, foot_kinematics(data.state)]
-        ok = np.isfinite(gap).all(1) & ~rows.solution.diverged
-        va = ok & is_val
-        train_episodes = np.unique(data.episode[ok & ~is_val])
-        mean, std = x[ok & ~is_val].mean(0), x[ok & ~is_val].std(0) + 1e-9
+    for path in args.sources:
+        if path.endswith(".npz"):
+            with np.load(path) as f:
+                rows = dict(f)
+        else:
+            rows = gap_rows(path, args.foot_kinematics, args.gap_only)
+            if args.save_rows:
+                np.savez_compressed(args.save_rows, **rows)
+        name = Path(path).name.removesuffix(".npz")
+        x, gap, episode, ok = rows["x"].astype(np.float64), rows["gap"].astype(np.float64), rows["episode"], rows["ok"]
+        va = ok & rows["is_val"]
+        train_episodes = np.unique(episode[ok & ~rows["is_val"]])
+        mean, std = x[ok & ~rows["is_val"]].mean(0), x[ok & ~rows["is_val"]].std(0) + 1e-9
         x = (x - mean) / std
-        print(f"{name}_oracle_removed={1 - rows.solution.error_after[va].sum() / rows.solution.error_before[va].sum():.3f}")
-        for frac in (0.25, 0.5, 1.0):
-            tr = ok & np.isin(data.episode, train_episodes[: max(1, round(frac * len(train_episodes)))])
-            k = f"{name}_{int(frac * 100)}pct"
-            score, epoch = mlp_best(x[tr], gap[tr], x[va], gap[va])
+        if "oracle_removed" in rows:
+            print(f"{name}_oracle_removed={float(rows['oracle_removed']):.3f}")
+        print(f"{name}_heldout_rows={int(va.sum())}")
+        for frac in (float(f) for f in args.fractions.split(",")):
+            tr = ok & np.isin(episode, train_episodes[: max(1, round(frac * len(train_episodes)))])
+            k = f"{name}_{frac * 100:g}pct"
+            score, epoch = mlp_best(x[tr], gap[tr], x[va], gap[va], args.epochs, hidden=args.hidden, device=args.device)
             print(f"{k}_train_rows={int(tr.sum())}")
             print(f"{k}_gap_r2_linear={r2(ridge(x[tr], gap[tr], x[va]), gap[va], gap[tr].mean(0)):.3f}")
             print(f"{k}_gap_r2_mlp={score:.3f}")
