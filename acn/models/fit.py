@@ -384,11 +384,12 @@ def _set_lr(opt: torch.optim.Optimizer, lr: float) -> None:
 class GraphedStep:
     """``fn()`` (one training step on static buffers) run through a CUDA graph.
 
-    On a GPU a step of these small networks is about 60 kernels of ~3 us each (H100: 182 us of kernel
-    time per batch of 256), so launching them from Python costs more than running them. The first ``warmup`` calls run eagerly on a side
-    stream (real steps: they allocate the optimiser state and autograd's buffers, as capture
-    requires); the next call captures the step once and every call replays it. ``fn`` must read its
-    inputs from and write its results to tensors that live across calls.
+    On a GPU a step of these small networks is about 60 kernels of ~3 us each (H100: 182 us of
+    kernel time per batch of 256), so launching them from Python costs more than running them. The
+    first ``warmup`` calls run eagerly on a side stream (real steps: they allocate the optimiser
+    state and autograd's buffers, as capture requires); the next call captures the step once and
+    every call replays it. ``fn`` must read its inputs from and write its results to tensors that
+    live across calls.
     """
 
     def __init__(self, fn, warmup: int = 3) -> None:
