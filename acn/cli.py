@@ -543,6 +543,9 @@ def diagnose_parser() -> argparse.ArgumentParser:
     p.add_argument("--side", default="source", choices=("source", "target"), help="which side of a paired dataset")
     p.add_argument("--add", action="append", default=[], metavar="EFFECT", help="fit and add this effect (repeatable)")
     p.add_argument("--auto", action="store_true", help="repeat rank -> add while the error falls by more than the noise")
+    p.add_argument("--auto-alternatives", type=_nonneg_int, default=d.auto_alternatives, metavar="N",
+                   help="with --auto: also start from the next N candidates and keep a chain that predicts clearly "
+                   "better (one effect can stand in for two)")
     p.add_argument("--save-model", type=Path, default=None, metavar="FILE", help="write the updated model JSON")
     p.add_argument("--json", type=Path, default=None, metavar="FILE", help="write the machine-readable result")
     p.add_argument("--report", type=Path, default=None, metavar="FILE.html", help="write the HTML report")
@@ -595,7 +598,8 @@ def diagnose_main(argv: list[str] | None = None) -> int:
         if args.corrector is not None and not args.corrector.is_dir():
             raise UserError(f"corrector directory {args.corrector} does not exist")
         model = Model.parse(args.model)
-        cfg = DiagnoseConfig(horizons=horizons, candidates=candidates, seed=args.seed)
+        cfg = DiagnoseConfig(horizons=horizons, candidates=candidates, seed=args.seed,
+                             auto_alternatives=args.auto_alternatives)
         data = load_measurements(args.measured, side=args.side)
         if args.closed_loop:  # refuse a log that cannot be re-run before the diagnosis, not after
             from acn.models.diagnose.transfer import robot_config

@@ -113,6 +113,29 @@ def test_a_richer_effect_gives_way_to_a_simpler_one_beside_the_others(tmp_path):
     assert chain[-1].after.headline <= 1.1 * d.final.headline  # as good as the richer chain
 
 
+def test_two_effects_one_stood_in_for_are_found_from_another_start(tmp_path):
+    """Payload 2 kg and damping 0.4 hidden; both PD gains added alone (as greedy adding did on a
+    noisy log: a higher derivative gain is damping, a lower proportional gain sags like a heavier
+    trunk). Started from the next candidates instead, a chain with the payload predicts the
+    held-out rows and 5-step rollouts clearly better and replaces it (``add.other_starts``)."""
+    from dataclasses import replace
+
+    from acn.models.diagnose.add import other_starts
+
+    data = measured(tmp_path, {"payload": {"mass": 2.0}, "joint_damping": {"value": 0.4}})
+    nominal = Model.parse("mujoco")
+    d = diagnose(data, nominal, FAST, add=["pd_gains"])
+    residual = d.problem.residual_of(nominal.sim_config(d.problem.control), d.judge_rows)
+    one = replace(FAST, auto_alternatives=1)  # the next candidate only: joint damping here
+    chain, tried = other_starts(d.problem, d.before, one, d.judge_rows, residual, d.floor_mse, d.ranking, d.added)
+    assert sorted(a.name for a in chain) == ["joint_damping", "payload"], [c.to_json() for c in tried]
+    assert [c.kept for c in tried].count(True) == 1 and not tried[0].kept
+    kept = next(c for c in tried if c.kept)
+    assert kept.versus["z"] >= 2 and kept.versus["longest_horizon_removed"] > 0, kept.to_json()
+    values = {t.name: t.values for t in chain[-1].after.model.effects}
+    assert close(values["payload"]["mass"], 2.0) and close(values["joint_damping"]["value"], 0.4), values
+
+
 def test_nominal_data_is_none(tmp_path):
     d = diagnose(measured(tmp_path, {}), Model.parse("mujoco"), FAST)
     assert d.verdict == "none", d.reason

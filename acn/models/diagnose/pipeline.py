@@ -30,7 +30,7 @@ import numpy as np
 
 from acn.datasets import checks
 from acn.datasets.measurements import Measurements
-from acn.models.diagnose.add import Added, add_effect, auto
+from acn.models.diagnose.add import Added, Chain, add_effect, auto
 from acn.models.diagnose.compare import Comparison, compare, floor_of
 from acn.models.diagnose.problem import DiagnoseConfig, Problem, prepare
 from acn.models.diagnose.rank import STRUCTURED_SHARE, Candidate, doubt, explained_share, one_step_only, rank
@@ -58,6 +58,7 @@ class Diagnosis:
     seconds: dict = field(default_factory=dict)
     closed_loop: dict | None = None  # robot vs model in closed loop (``transfer.closed_loop_models``)
     data_checks: list[checks.Finding] = field(default_factory=list)  # the measurements' own consistency
+    chains: list[Chain] = field(default_factory=list)  # --auto: every chain of added effects tried (``add.auto``)
 
     @property
     def floor_mse(self) -> float:
@@ -171,15 +172,17 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
         step = add_effect(problem, current.model, name, cfg, judge_rows, current_residual, current, start=start)
         added.append(step)
         current, current_residual = step.after, step.judgement.residual_after
+    chains: list[Chain] = []
     if automatic:
         again = ranking if not added else rank(problem, current.model, cfg, judge_rows, current_residual, say)
-        added += auto(problem, current, cfg, judge_rows, current_residual, floor_mse, again, say)
+        steps, chains = auto(problem, current, cfg, judge_rows, current_residual, floor_mse, again, say)
+        added += steps
     t3 = time.perf_counter()
     v, reason, named = verdict(before, mse, floor_mse, ranking, added, automatic)
     reason += findings_note(findings, named)
     return Diagnosis(data.description, problem, before, judge_rows, floor, mse, where, ranking, added, v, reason,
                      seconds={"compare": t1 - t0, "rank": t2 - t1, "add": t3 - t2, "total": t3 - t0},
-                     data_checks=findings)
+                     data_checks=findings, chains=chains)
 
 
 def explain_corrector(data: Measurements, model: Model, corrector_dir, cfg: DiagnoseConfig | None = None,

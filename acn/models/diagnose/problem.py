@@ -41,6 +41,7 @@ class DiagnoseConfig:
     fit_rows: int = 1_500          # fit rows for an added effect's final fit
     candidates: tuple[str, ...] = EFFECT_NAMES
     auto_max: int = 4              # at most this many effects added by --auto
+    auto_alternatives: int = 2     # --auto also starts from the next this many candidates (``add.other_starts``)
     threads: int | None = None
     seed: int = 0
 
@@ -50,6 +51,8 @@ class DiagnoseConfig:
         for name in ("compare_rows", "rollout_starts", "rank_rows", "judge_rows", "fit_rows"):
             if getattr(self, name) < 8:
                 raise UserError(f"{name} must be >= 8")
+        if self.auto_alternatives < 0:
+            raise UserError("auto_alternatives must be >= 0")
 
 
 @dataclass

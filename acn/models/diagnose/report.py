@@ -116,6 +116,7 @@ def to_json(d: Diagnosis) -> dict:
         "where": d.where,
         "ranking": [_candidate(c, d.floor_mse) for c in d.ranking],
         "added": [_added(a, d.floor_mse) for a in d.added],
+        "chains": [c.to_json() for c in d.chains],
         "model": d.before.model.to_json(), "final_model": d.final.model.to_json(),
         "seconds": d.seconds,
         "closed_loop": d.closed_loop,
@@ -179,6 +180,10 @@ def terminal(d: Diagnosis) -> str:
         out += ["", f"added {a.name} ({a.fit.granularity}): {a.fit.effect.to_json(a.fit.values)}"]
         out += [t for t in [_unidentified_text(a.fit), _noise_fit_text(a)] if t]
         out += [f"headline {a.before.headline:.4f} -> {a.after.headline:.4f}", error_table(a.before, a.after)]
+    if len(d.chains) > 1:
+        out += ["", "chains of effects tried by --auto (started with):"]
+        out += [f"  {c.start}: {' + '.join(c.names) or 'nothing added'}; {'KEPT, ' if c.kept else ''}{c.why}"
+                for c in d.chains]
     out += ["", f"verdict: {d.verdict} ({d.reason})"]
     if d.closed_loop:
         out += ["", closed_loop_table(d.closed_loop)]
@@ -259,6 +264,8 @@ def write_html(d: Diagnosis, path: str | Path) -> Path:
                     + "".join(f"<br><i>{html.escape(t)}</i>" for t in (_unidentified_text(a.fit), _noise_fit_text(a)) if t)
                     + "</li>"
                     for a in d.added)
+    chains = "".join(f"<li>started with {c.start}: <b>{html.escape(' + '.join(c.names) or 'nothing added')}</b>"
+                     f"{' (kept)' if c.kept else ''}: {html.escape(c.why)}</li>" for c in d.chains) if len(d.chains) > 1 else ""
     checks_html = ("<p><b>Data checks</b> (the measurements' own consistency, before any model; a model compared "
                    "with them explains these as physics):</p><ul>"
                    + "".join(f"<li>{html.escape(f.message)}</li>" for f in d.data_checks) + "</ul>") if d.data_checks else ""
@@ -273,6 +280,7 @@ td,th{{border:1px solid #ccc;padding:4px 8px}}</style></head><body>
 <h2>Candidate effects</h2><table><tr><th>effect</th><th>fitted as</th><th>explained</th><th>error removed</th><th>z</th>
 <th>{max(d.before.error)}-step error removed</th><th>parameters</th><th>set aside because</th></tr>{ranking}</table>
 {'<h2>Added</h2><ul>' + added + '</ul>' if added else ''}
+{'<p>Chains of effects tried by --auto (one effect can stand in for two):</p><ul>' + chains + '</ul>' if chains else ''}
 {loop_html}
 <h2>Plots</h2>{''.join(parts)}</body></html>"""
     path = Path(path)
