@@ -22,8 +22,8 @@ import numpy as np
 from acn.models.diagnose.compare import Comparison, compare
 from acn.models.diagnose.fitting import EffectFit, default_granularity, fit_effect, instrumental_refit, refittable
 from acn.models.diagnose.problem import DiagnoseConfig, Problem
-from acn.models.diagnose.rank import (PARSIMONY_Z, Candidate, Judgement, _paired_z, doubt, fits_noise, implausible,
-                                      judge, rank)
+from acn.models.diagnose.rank import (PARSIMONY_Z, Candidate, Judgement, doubt, fits_noise, implausible, judge,
+                                      paired_z, rank)
 from acn.toolkit.effects import Model, get_effect
 
 AUTO_MIN_EXPLAINED = 0.05  # --auto stops when the best candidate explains less of what is left
@@ -169,7 +169,7 @@ def versus(new: list[Added], old: list[Added]) -> dict:
     rows), and the share of ``old``'s open-loop error at the longest horizon it removes."""
     e_new, e_old = ((c[-1].judgement.residual_after ** 2).mean(1) for c in (new, old))
     out = {"one_step_removed": 1.0 - float(e_new.mean() / e_old.mean()) if e_old.mean() > 0 else 0.0,
-           "z": _paired_z(e_old - e_new), "longest_horizon_removed": None}
+           "z": paired_z(e_old - e_new), "longest_horizon_removed": None}
     h = max(new[-1].after.channel_error)
     if h > 1:
         a, b = (float(np.mean(c[-1].after.channel_error[h] ** 2)) for c in (new, old))

@@ -206,7 +206,7 @@ def judge(problem: Problem, after: Model, rows: np.ndarray, before_residual: np.
     ra = np.where(np.isfinite(ra), ra, 10.0)
     eb, ea = (before_residual[ok] ** 2).mean(1), (ra[ok] ** 2).mean(1)
     mse_b, mse_a = float(eb.mean()), float(ea.mean())
-    z = _paired_z(eb - ea)
+    z = paired_z(eb - ea)
     removed = 1.0 - mse_a / mse_b if mse_b > 0 else 0.0
     gain = (mse_b - mse_a) / (reference_mse or mse_b) if mse_b > 0 else 0.0
     significant = gain >= MIN_IMPROVEMENT and (z >= SIGNIFICANCE_Z or gain >= LARGE_IMPROVEMENT)
@@ -255,14 +255,14 @@ def prefer_simpler(ranking: list[Candidate]) -> list[Candidate]:
         e_simple = (c.judgement.residual_after ** 2).mean(1)
         e_best = (best.judgement.residual_after ** 2).mean(1)
         close = c.judgement.removed >= PARSIMONY_SHARE * best.judgement.removed
-        if close or _paired_z(e_simple - e_best) < PARSIMONY_Z:
+        if close or paired_z(e_simple - e_best) < PARSIMONY_Z:
             out = [x for x in ranking if x is not c]
             out.insert(out.index(best), c)
             return out
     return ranking
 
 
-def _paired_z(diff: np.ndarray) -> float:
+def paired_z(diff: np.ndarray) -> float:
     """mean / standard error of ``diff`` over blocks of consecutive rows."""
     blocks = diff[: len(diff) // BLOCK * BLOCK].reshape(-1, BLOCK).mean(1) if len(diff) >= 2 * BLOCK else diff
     se = float(blocks.std(ddof=1) / np.sqrt(len(blocks))) if len(blocks) > 1 else np.inf
