@@ -90,6 +90,7 @@ def test_two_effects_together_are_both_found(tmp_path):
     d = diagnose(data, Model.parse("mujoco"), FAST, automatic=True)
     names = [a.name for a in d.added]
     assert set(names[:2]) == {"actuator_latency", "joint_damping"}, names
+    assert [c.names for c in d.chains if c.kept] == [names], [c.to_json() for c in d.chains]  # the chain reported
     values = {t.name: t.values for t in d.final.model.effects}  # each effect refitted as the next one came in
     assert close(values["actuator_latency"]["seconds"], 0.01) and close(values["joint_damping"]["value"], 0.5)
     assert d.verdict == "effect" and d.final.headline < 0.2 * d.before.headline
