@@ -115,35 +115,28 @@ class Chain:
 
 def auto(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows: np.ndarray, base_residual: np.ndarray,
          floor_mse: float, ranking: list[Candidate], progress=None) -> tuple[list[Added], list[Chain]]:
-    """``greedy`` then ``revisit``, from the best candidate; then, where the chain leaves a
-    significant, plausible candidate it did not add (a true effect that the chain's effects took
-    most of, but not all), ``other_starts`` from the next ``cfg.auto_alternatives`` candidates.
-    Returns the added effects of the chain kept, and every chain tried."""
-    steps, left = greedy(problem, first, cfg, judge_rows, base_residual, floor_mse, ranking, progress)
-    chain = revisit(problem, first, cfg, judge_rows, base_residual, steps, progress)
-    if not left:
-        return chain, [Chain(chain, chain[0].name, kept=True, why="nothing significant left")] if chain else []
+    """``greedy`` then ``revisit``, from the best candidate and (``other_starts``) from the next
+    ``cfg.auto_alternatives`` ones; the added effects of the chain kept, and every chain tried.
+
+    The other starts are tried whatever the chain leaves: once one effect has stood in for two,
+    the one-step error can sit at the noise floor (nothing left to rank) while the open-loop
+    error is still three times what the right pair leaves (payload + damping below)."""
+    chain = revisit(problem, first, cfg, judge_rows, base_residual,
+                    greedy(problem, first, cfg, judge_rows, base_residual, floor_mse, ranking, progress), progress)
     return other_starts(problem, first, cfg, judge_rows, base_residual, floor_mse, ranking, chain, progress)
 
 
 def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows: np.ndarray,
-           base_residual: np.ndarray, floor_mse: float, ranking: list[Candidate],
-           progress=None) -> tuple[list[Added], list[Candidate]]:
+           base_residual: np.ndarray, floor_mse: float, ranking: list[Candidate], progress=None) -> list[Added]:
     """Greedy rank -> add while the best candidate removes more than the noise: it explains at
     least ``AUTO_MIN_EXPLAINED`` of what is left above the floor, and removes ``AUTO_MIN_REMOVED``
-    of the one-step error or ``AUTO_MIN_LONGER`` of the longest-horizon open-loop error.
-    Returns the added effects and the significant, plausible candidates left in the last ranking
-    (empty where ``cfg.auto_max`` effects were added)."""
+    of the one-step error or ``AUTO_MIN_LONGER`` of the longest-horizon open-loop error."""
     added: list[Added] = []
     noise_fits: set[str] = set()  # added, then found to improve the one step only
     current, residual = first, base_residual
-
-    def left() -> list[Candidate]:
-        return [c for c in ranking if c.name not in {a.name for a in added} | noise_fits
-                and c.judgement.significant and not doubt(c)]
-
     while len(added) < cfg.auto_max:
-        best = next(iter(left()), None)
+        best = next((c for c in ranking if c.name not in {a.name for a in added} | noise_fits
+                     and c.judgement.significant and not doubt(c)), None)
         if best is None or best.judgement.explained(floor_mse) < AUTO_MIN_EXPLAINED:
             break
         if best.judgement.removed < AUTO_MIN_REMOVED and (best.longer_gain or 0.0) < AUTO_MIN_LONGER:
@@ -160,7 +153,7 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
         current, residual = step.after, step.judgement.residual_after
         if len(added) < cfg.auto_max:
             ranking = rank(problem, current.model, cfg, judge_rows, residual, progress)
-    return added, left() if len(added) < cfg.auto_max else []
+    return added
 
 
 def versus(new: list[Added], old: list[Added]) -> dict:
@@ -204,7 +197,7 @@ def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge
     for c in [c for c in pool if c.name != chain[0].name][:cfg.auto_alternatives]:
         if progress:
             progress(f"trying {c.name} first", None)
-        steps, _ = greedy(problem, first, shortlist, judge_rows, base_residual, floor_mse, [c], progress)
+        steps = greedy(problem, first, shortlist, judge_rows, base_residual, floor_mse, [c], progress)
         steps = revisit(problem, first, cfg, judge_rows, base_residual, steps, progress)
         other = Chain(steps, c.name)
         tried.append(other)

@@ -41,7 +41,7 @@ class DiagnoseConfig:
     fit_rows: int = 1_500          # fit rows for an added effect's final fit
     candidates: tuple[str, ...] = EFFECT_NAMES
     auto_max: int = 4              # at most this many effects added by --auto
-    auto_alternatives: int = 2     # --auto also starts from the next this many candidates (``add.other_starts``)
+    auto_alternatives: int = 1     # --auto also starts from the next this many candidates (``add.other_starts``)
     threads: int | None = None
     seed: int = 0
 
