@@ -15,7 +15,7 @@ import tempfile
 from pathlib import Path
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from acn.datasets.measurements import load_measurements
@@ -111,6 +111,7 @@ def test_mutated_corrector_files(corrector_dir, data, delete, new, cut):
 @given(doc=st.dictionaries(st.sampled_from(["backend", "effects", "corrector", "extra"]), JSON, max_size=3),
        effect=st.dictionaries(st.sampled_from(["name", "params", "where"]), JSON | st.sampled_from(
            ["joint_damping", "actuator_latency", "payload"]), max_size=3))
+@example(doc={"effects": None}, effect={"name": []})  # found by hypothesis: an unhashable name was a TypeError
 def test_mutated_model_files(doc, effect):
     if "effects" in doc and not isinstance(doc["effects"], list):
         doc["effects"] = [effect]

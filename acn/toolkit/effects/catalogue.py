@@ -104,7 +104,6 @@ EFFECT_NAMES: tuple[str, ...] = tuple(CATALOGUE)
 
 def get_effect(name: str) -> Effect:
     """The catalogue effect called ``name``; a one-line error listing the names otherwise."""
-    try:
-        return CATALOGUE[name]
-    except KeyError:
-        raise UserError(f"unknown effect {name!r}; the catalogue: {', '.join(EFFECT_NAMES)}") from None
+    if not isinstance(name, str) or name not in CATALOGUE:  # a model file may hold any JSON value here
+        raise UserError(f"unknown effect {name!r}; the catalogue: {', '.join(EFFECT_NAMES)}")
+    return CATALOGUE[name]
