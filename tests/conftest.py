@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import tempfile
 
@@ -29,6 +30,17 @@ def _outside_the_tree(tmp_path_factory):
     os.chdir(tmp_path_factory.mktemp("cwd"))
     yield
     os.chdir(before)
+
+
+@pytest.fixture
+def interruptible():
+    """Children this test starts can be interrupted with SIGINT, as from a terminal: a process
+    started with SIGINT ignored keeps ignoring it (Python installs no KeyboardInterrupt handler),
+    and a test worker may run with it ignored. Here SIGINT is Python's default handler, which a
+    child's exec turns back into the default action."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
 
 
 @pytest.fixture(scope="session")

@@ -191,7 +191,7 @@ def _collect_cmd(out: Path, episodes: int) -> list[str]:
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_interrupt_keeps_finished_episodes_as_a_valid_dataset(tmp_path, sig):
+def test_interrupt_keeps_finished_episodes_as_a_valid_dataset(tmp_path, sig, interruptible):
     out = tmp_path / "interrupted"
     proc = subprocess.Popen(_collect_cmd(out, 200), stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONUNBUFFERED": "1"})

@@ -125,10 +125,12 @@ def test_two_effects_one_stood_in_for_are_found_from_another_start(tmp_path):
 
     data = measured(tmp_path, {"payload": {"mass": 2.0}, "joint_damping": {"value": 0.4}})
     nominal = Model.parse("mujoco")
-    d = diagnose(data, nominal, FAST, add=["pd_gains"])
+    # the runner-up only (joint damping here), among the candidates that matter (time)
+    cfg = replace(FAST, auto_alternatives=1,
+                  candidates=("pd_gains", "payload", "joint_damping", "joint_friction", "motor_strength"))
+    d = diagnose(data, nominal, cfg, add=["pd_gains"])
     residual = d.problem.residual_of(nominal.sim_config(d.problem.control), d.judge_rows)
-    one = replace(FAST, auto_alternatives=1)  # the next candidate only: joint damping here
-    chain, tried = other_starts(d.problem, d.before, one, d.judge_rows, residual, d.floor_mse, d.ranking, d.added)
+    chain, tried = other_starts(d.problem, d.before, cfg, d.judge_rows, residual, d.floor_mse, d.ranking, d.added)
     assert sorted(a.name for a in chain) == ["joint_damping", "payload"], [c.to_json() for c in tried]
     assert [c.kept for c in tried].count(True) == 1 and not tried[0].kept
     kept = next(c for c in tried if c.kept)

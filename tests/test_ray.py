@@ -149,7 +149,7 @@ def _collect(out: Path, episodes: int, address: str) -> subprocess.Popen:
     return subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
 
 
-def test_interrupt_keeps_finished_episodes_as_a_valid_dataset(ray_address, tmp_path):
+def test_interrupt_keeps_finished_episodes_as_a_valid_dataset(ray_address, tmp_path, interruptible):
     out = tmp_path / "interrupted"
     proc = _collect(out, 200, ray_address)
     for line in proc.stderr:  # wait for the second finished episode
