@@ -51,8 +51,11 @@ def ray_address():
     """A local Ray instance (2 CPUs) for the module; yields its address."""
     before = set(Path(tempfile.gettempdir()).glob("acn-ray-*"))
     with parallel.ray_session(RAY) as ray:
-        (temp,) = set(Path(tempfile.gettempdir()).glob("acn-ray-*")) - before
-        temp_dir = str(temp)
+        new = set(Path(tempfile.gettempdir()).glob("acn-ray-*")) - before
+        # this session's (Ray links session_latest in it): another process may make one meanwhile
+        ours = [t for t in new if (t / "session_latest").exists()] or sorted(new)
+        assert len(ours) == 1, f"expected one new Ray temp dir, found {sorted(map(str, new))}"
+        temp_dir = str(ours[0])
         yield ray.get_runtime_context().gcs_address
     deadline = time.time() + 20
     while _ray_processes(temp_dir) and time.time() < deadline:
