@@ -86,13 +86,19 @@ def add_effect(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, j
     return Added(fit, judgement, before, compare(problem, fit.model, cfg))
 
 
-def longer_gain(step: Added) -> float | None:
-    """Share of the open-loop error at the longest compared horizon (> 1) the step removes."""
-    h = max(step.before.channel_error)
+def longest_removed(before: Comparison, after: Comparison) -> float | None:
+    """Share of ``before``'s open-loop error at the longest compared horizon (> 1) that ``after``
+    removes (None with one-step horizons only)."""
+    h = max(before.channel_error)
     if h <= 1:
         return None
-    before, after = (np.mean(c.channel_error[h] ** 2) for c in (step.before, step.after))
-    return 1.0 - float(after / before) if before > 0 else 0.0
+    b, a = (np.mean(c.channel_error[h] ** 2) for c in (before, after))
+    return 1.0 - float(a / b) if b > 0 else 0.0
+
+
+def longer_gain(step: Added) -> float | None:
+    """Share of the open-loop error at the longest compared horizon (> 1) the step removes."""
+    return longest_removed(step.before, step.after)
 
 
 @dataclass
@@ -156,18 +162,13 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
     return added
 
 
-def versus(new: list[Added], old: list[Added]) -> dict:
+def improvement(new: list[Added], old: list[Added]) -> dict:
     """How much better the final model of chain ``new`` predicts than that of ``old``: the share
     of ``old``'s held-out one-step error it removes (same judge rows), its paired z (blocks of
     rows), and the share of ``old``'s open-loop error at the longest horizon it removes."""
     e_new, e_old = ((c[-1].judgement.residual_after ** 2).mean(1) for c in (new, old))
-    out = {"one_step_removed": 1.0 - float(e_new.mean() / e_old.mean()) if e_old.mean() > 0 else 0.0,
-           "z": paired_z(e_old - e_new), "longest_horizon_removed": None}
-    h = max(new[-1].after.channel_error)
-    if h > 1:
-        a, b = (float(np.mean(c[-1].after.channel_error[h] ** 2)) for c in (new, old))
-        out["longest_horizon_removed"] = 1.0 - a / b if b > 0 else 0.0
-    return out
+    return {"one_step_removed": 1.0 - float(e_new.mean() / e_old.mean()) if e_old.mean() > 0 else 0.0,
+            "z": paired_z(e_old - e_new), "longest_horizon_removed": longest_removed(old[-1].after, new[-1].after)}
 
 
 def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows: np.ndarray,
@@ -207,7 +208,7 @@ def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge
         if sorted(other.names) == sorted(kept.names):
             other.why = "the same effects"
             continue
-        other.versus = v = versus(steps, kept.steps)
+        other.versus = v = improvement(steps, kept.steps)
         longer = v["longest_horizon_removed"]
         gains = f"one-step error {-v['one_step_removed']:+.1%} (z {v['z']:.1f})"
         if longer is not None:
