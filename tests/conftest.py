@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
 import signal
 import subprocess
 import tempfile
@@ -16,7 +18,9 @@ from hypothesis.configuration import set_hypothesis_home_dir  # noqa: E402
 
 from acn.toolkit.collector import CollectConfig, collect_episodes  # noqa: E402
 
-set_hypothesis_home_dir(tempfile.mkdtemp(prefix="acn-hypothesis-"))  # no .hypothesis/ in the tree
+_HYPOTHESIS_HOME = tempfile.mkdtemp(prefix="acn-hypothesis-")  # no .hypothesis/ in the tree, none left in /tmp
+atexit.register(shutil.rmtree, _HYPOTHESIS_HOME, ignore_errors=True)
+set_hypothesis_home_dir(_HYPOTHESIS_HOME)
 settings.register_profile("acn", database=None)
 settings.load_profile("acn")
 

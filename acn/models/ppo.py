@@ -52,6 +52,7 @@ import numpy as np
 import torch
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor, VecNormalize
 from torch import nn
@@ -677,6 +678,8 @@ class Trainer:
             if cfg.eval_every:
                 self.evaluate(cfg.eval_episodes)
             st.next_refit, st.next_eval = cfg.refit_every, cfg.eval_every
+        # SB3's default logger makes an empty tempdir/SB3-<date> folder on every learn(); ours logs itself
+        self.model.set_logger(Logger(folder=None, output_formats=[]))
         callback = Algorithm2(self)
         try:
             self.model.learn(total_timesteps=cfg.timesteps - st.timesteps, callback=callback,
