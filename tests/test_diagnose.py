@@ -13,6 +13,7 @@ from acn.datasets.measurements import load_measurements
 from acn.datasets.record import record
 from acn.errors import UserError
 from acn.models.diagnose import DiagnoseConfig, diagnose
+from acn.models.diagnose.report import terminal, write_html
 from acn.toolkit.collector import CollectConfig
 from acn.toolkit.effects import AppliedEffect, Model, get_effect
 from acn.toolkit.state import JOINT_NAMES
@@ -91,6 +92,11 @@ def test_two_effects_together_are_both_found(tmp_path):
     names = [a.name for a in d.added]
     assert set(names[:2]) == {"actuator_latency", "joint_damping"}, names
     assert [c.names for c in d.chains if c.kept] == [names], [c.to_json() for c in d.chains]  # the chain reported
+    assert len(d.chains) == 2  # the runner-up chain too: each is listed with why, where the user reads
+    text, page = terminal(d), write_html(d, tmp_path / "r.html").read_text()
+    for c in d.chains:
+        assert f"  {c.start}: {c.label}; " in text and c.why in text
+        assert f"started with {c.start}: <b>{c.label}</b>" in page
     values = {t.name: t.values for t in d.final.model.effects}  # each effect refitted as the next one came in
     assert close(values["actuator_latency"]["seconds"], 0.01) and close(values["joint_damping"]["value"], 0.5)
     assert d.verdict == "effect" and d.final.headline < 0.2 * d.before.headline

@@ -115,6 +115,11 @@ class Chain:
     def names(self) -> list[str]:
         return [a.name for a in self.steps]
 
+    @property
+    def label(self) -> str:
+        """The added effects in words: "payload + joint_damping", or "nothing added"."""
+        return " + ".join(self.names) or "nothing added"
+
     def to_json(self) -> dict:
         return {"start": self.start, "added": self.names, "kept": self.kept, "why": self.why, **self.versus}
 
@@ -213,7 +218,7 @@ def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge
         gains = f"one-step error {-v['one_step_removed']:+.1%} (z {v['z']:.1f})"
         if longer is not None:
             gains += f", {max(steps[-1].after.channel_error)}-step error {-longer:+.0%}"
-        gains += f" against {' + '.join(kept.names)}"
+        gains += f" against {kept.label}"
         if (v["z"] >= PARSIMONY_Z and (longer is None or longer > 0)
                 and (v["one_step_removed"] >= AUTO_MIN_REMOVED or (longer or 0.0) >= AUTO_MIN_LONGER)):
             kept.kept, kept.why = False, f"replaced by the chain started with {c.name}"

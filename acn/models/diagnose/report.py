@@ -182,7 +182,7 @@ def terminal(d: Diagnosis) -> str:
         out += [f"headline {a.before.headline:.4f} -> {a.after.headline:.4f}", error_table(a.before, a.after)]
     if len(d.chains) > 1:
         out += ["", "chains of effects tried by --auto (started with):"]
-        out += [f"  {c.start}: {' + '.join(c.names) or 'nothing added'}; {'KEPT, ' if c.kept else ''}{c.why}"
+        out += [f"  {c.start}: {c.label}; {'KEPT, ' if c.kept else ''}{c.why}"
                 for c in d.chains]
     out += ["", f"verdict: {d.verdict} ({d.reason})"]
     if d.closed_loop:
@@ -264,7 +264,7 @@ def write_html(d: Diagnosis, path: str | Path) -> Path:
                     + "".join(f"<br><i>{html.escape(t)}</i>" for t in (_unidentified_text(a.fit), _noise_fit_text(a)) if t)
                     + "</li>"
                     for a in d.added)
-    chains = "".join(f"<li>started with {c.start}: <b>{html.escape(' + '.join(c.names) or 'nothing added')}</b>"
+    chains = "".join(f"<li>started with {c.start}: <b>{html.escape(c.label)}</b>"
                      f"{' (kept)' if c.kept else ''}: {html.escape(c.why)}</li>" for c in d.chains) if len(d.chains) > 1 else ""
     checks_html = ("<p><b>Data checks</b> (the measurements' own consistency, before any model; a model compared "
                    "with them explains these as physics):</p><ul>"
