@@ -377,3 +377,33 @@ def test_parameters_the_data_cannot_pin_down_are_flagged():
     fit = EffectFit(effect, "joint", {"value": np.zeros(12)}, [f"value[{j}]" for j in JOINT_NAMES], np.zeros(12),
                     stderr, Model("mujoco"), cost=0.0, evaluations=0, nominal={"value": np.zeros(12)})
     assert unidentified(fit) == ["value[FR_hip]", "value[FR_thigh]", "value[FR_calf]"]
+
+
+def test_candidates_one_step_cannot_tell_apart_are_ordered_by_the_longer_prediction():
+    """Tied at one step (z < 2 between them), the one that lowers the longest-horizon error by
+    5 % more goes first; a clear one-step winner, a richer effect or a small longer gain do not move."""
+    from acn.models.diagnose.fitting import EffectFit
+    from acn.models.diagnose.rank import Candidate, Judgement, prefer_longer, tied_with_best
+
+    rng = np.random.default_rng(0)
+
+    def candidate(name: str, value: float, error: float, longer: float | None) -> Candidate:
+        effect = get_effect(name)
+        values = {p.name: np.asarray(value) for p in effect.parameters}
+        fit = EffectFit(effect, "shared", values, list(values), np.full(len(values), value), np.zeros(len(values)),
+                        Model("mujoco"), cost=0.0, evaluations=0, nominal={p.name: p.nominal for p in effect.parameters})
+        residual = rng.normal(0.0, error, (600, 4))
+        mse = float(np.mean(residual ** 2))
+        return Candidate(fit, Judgement(1.0, mse, 1.0 - mse, 10.0, True, residual), 1.0 - mse, longer)
+
+    friction = candidate("joint_friction", 0.45, 0.500, 0.61)
+    damping = candidate("joint_damping", 0.5, 0.501, 0.71)   # as good at one step, clearly better at 25 steps
+    assert [c.name for c in tied_with_best([friction, damping])] == ["joint_friction", "joint_damping"]
+    assert [c.name for c in prefer_longer([friction, damping])] == ["joint_damping", "joint_friction"]
+    damping.longer_gain = 0.64                                # better by less than 5 % of the error
+    assert [c.name for c in prefer_longer([friction, damping])] == ["joint_friction", "joint_damping"]
+    damping.longer_gain = 0.71
+    worse = candidate("joint_damping", 0.5, 0.60, 0.71)      # clearly worse at one step: not tied
+    assert tied_with_best([friction, worse]) == [] and prefer_longer([friction, worse])[0] is friction
+    gains = candidate("pd_gains", 1.3, 0.501, 0.9)           # more parameters than the best: not tied
+    assert prefer_longer([friction, gains])[0] is friction
