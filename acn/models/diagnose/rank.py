@@ -28,7 +28,7 @@ and without it. A candidate's evidence:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -179,30 +179,47 @@ def open_loop_gain(before: np.ndarray, after: np.ndarray) -> float:
     return 1.0 - float(np.mean(np.where(np.isfinite(after[ok]), after[ok], 10.0) ** 2)) / mse if mse > 0 else 0.0
 
 
-def longer_gains(problem: Problem, model: Model, cfg: DiagnoseConfig, candidates: list[Candidate],
-                 until_one_passes: bool = False) -> None:
-    """Set ``longer_gain`` of ``candidates`` where it is not set, in order: the share of
-    ``model``'s open-loop error at the longest horizon of ``cfg`` each removes (nothing with
-    one-step horizons only); ``until_one_passes``: stop at the first that lowers that error."""
-    h = max(cfg.horizons)
-    if h <= 1:
+@dataclass
+class LongestHorizon:
+    """The open-loop check at the longest horizon of ``cfg`` against ``model``: the same held-out
+    start rows for every candidate, and ``model``'s residuals from them simulated once, on first
+    use (``rank`` asks for it up to three times)."""
+
+    problem: Problem
+    model: Model
+    cfg: DiagnoseConfig
+    _base: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def steps(self) -> int:
+        return max(self.cfg.horizons)
+
+    def gain(self, candidate: Model) -> float:
+        """Share of ``model``'s open-loop error at the longest horizon that ``candidate`` removes."""
+        starts = self.problem.rollout_starts(self.steps, self.cfg.rollout_starts)
+        if self._base is None:
+            self._base = self.problem.residual_of(self.model.sim_config(self.problem.control), starts, self.steps)
+        after = self.problem.residual_of(candidate.sim_config(self.problem.control), starts, self.steps)
+        return open_loop_gain(self._base, after)
+
+
+def longer_gains(horizon: LongestHorizon, candidates: list[Candidate], until_one_passes: bool = False) -> None:
+    """Set ``longer_gain`` of ``candidates`` where it is not set, in order (nothing with one-step
+    horizons only); ``until_one_passes``: stop at the first that lowers the longest-horizon error."""
+    if horizon.steps <= 1:
         return
-    starts = problem.rollout_starts(h, cfg.rollout_starts)
-    base = None
     for c in candidates:
         if c.longer_gain is None:
-            if base is None:
-                base = problem.residual_of(model.sim_config(problem.control), starts, h)
-            c.longer_gain = open_loop_gain(base, problem.residual_of(c.fit.model.sim_config(problem.control), starts, h))
+            c.longer_gain = horizon.gain(c.fit.model)
         if until_one_passes and not one_step_only(c):
             break
 
 
-def screen(problem: Problem, model: Model, cfg: DiagnoseConfig, ranking: list[Candidate]) -> None:
+def screen(horizon: LongestHorizon, ranking: list[Candidate]) -> None:
     """``longer_gains`` of the significant candidates of plausible magnitude, in rank order,
     until one lowers the open-loop error at the longest horizon (at most SCREENED)."""
     plausible = [c for c in ranking if c.judgement.significant and not implausible(c.fit)]
-    longer_gains(problem, model, cfg, plausible[:SCREENED], until_one_passes=True)
+    longer_gains(horizon, plausible[:SCREENED], until_one_passes=True)
 
 
 def judge(problem: Problem, after: Model, rows: np.ndarray, before_residual: np.ndarray,
@@ -240,10 +257,11 @@ def rank(problem: Problem, model: Model, cfg: DiagnoseConfig, judge_rows: np.nda
     out.sort(key=lambda c: (-c.score, len(c.fit.x)))
     if progress:
         progress("checking the best candidates at the longest horizon", None)
+    horizon = LongestHorizon(problem, model, cfg)
     for _ in range(2):  # twice: the simpler candidate put in the best one's place is checked too
-        screen(problem, model, cfg, out)
+        screen(horizon, out)
         out = prefer_simpler(sorted(out, key=lambda c: bool(one_step_only(c))))  # noise fits last
-    longer_gains(problem, model, cfg, tied_with_best(out))
+    longer_gains(horizon, tied_with_best(out))
     return prefer_longer(out)
 
 
