@@ -10,6 +10,8 @@ line per case and ``name=value`` totals:
 - ``removed_80pct``: of those, the added effect explains >= 80 % of the error above the floor;
 - ``verdict_right``: "none" on nominal logs, "unexplained" outside the catalogue, "effect" else.
 
+With ``--other``, the ``OTHER`` cases instead: values and seeds the rules were not made on.
+
 With ``--pairs``, logs with TWO hidden effects instead (``--auto``), one line each and:
 
 - ``pairs_both_named``: both hidden effects added, and nothing else;
@@ -83,6 +85,29 @@ CASES = {
 }
 
 
+def _payload_at(mass: float, pos: list[float]):
+    def edit(spec):
+        body = spec.body("trunk").add_body(name="payload", pos=pos)
+        body.mass, body.inertia, body.explicitinertial = mass, [1e-3, 1e-3, 1e-3], True
+    return edit
+
+
+# The same kind of logs at values the rules were never looked at on: the other side of nominal
+# (stronger motors, stiffer gains), larger and smaller magnitudes, a payload behind the trunk's
+# centre, another gait without an effect; other seeds (700 + i). Selected with --other.
+OTHER = {
+    "damping 1.0": ({"spec_edit": _joints("damping", 1.0)}, "effect", "joint_damping", "value", 1.0),
+    "strength 1.2": ({"strength": 1.2}, "effect", "motor_strength", "scale", 1.2),
+    "kp x1.3": ({"gains": (1.3, 1.0)}, "effect", "pd_gains", "kp_scale", 1.3),
+    "latency 25 ms": ({"latency_steps": 25}, "effect", "actuator_latency", "seconds", 0.025),
+    "payload 3.5 kg": ({"spec_edit": _payload_at(3.5, [-0.05, 0.0, 0.05])}, "effect", "payload", "mass", 3.5),
+    "friction 0.15": ({"spec_edit": _joints("frictionloss", 0.15)}, "effect", "joint_friction", "value", 0.15),
+    "armature 0.01": ({"spec_edit": _joints("armature", 0.01)}, "effect", "armature", "value", 0.01),
+    "floor 0.5 (pace)": ({"spec_edit": _floor(0.5), "controller": "pace"}, "effect", "ground_friction", "value", 0.5),
+    "nominal (pace)": ({"controller": "pace"}, "none", None, None, None),
+}
+
+
 def _both(*edits):
     def edit(spec):
         for e in edits:
@@ -138,16 +163,19 @@ def main() -> None:
     ap.add_argument("--noise", type=float, default=1.0, help="sensor noise, multiple of robot_log.NOISE")
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--episodes", type=int, default=4)
-    ap.add_argument("--cases", default=",".join(CASES))
+    ap.add_argument("--cases", default=None, help="comma-separated names (default: every case of the set)")
+    ap.add_argument("--other", action="store_true", help="the OTHER set: values and seeds the rules never saw")
     ap.add_argument("--pairs", action="store_true", help="logs with two hidden effects instead (PAIRS)")
     args = ap.parse_args()
     root = Path(tempfile.mkdtemp())
     if args.pairs:
         return pairs(args, root)
+    cases, seed = (OTHER, 700) if args.other else (CASES, 100)
     tally = {"ranked_first": [0, 0], "within_15pct": [0, 0], "removed_80pct": [0, 0], "verdict_right": [0, 0]}
-    for i, name in enumerate(args.cases.split(",")):
-        over, want, effect, key, true = CASES[name]
-        spec = LogSpec(seconds=args.seconds, episodes=args.episodes, seed=100 + i, noise=args.noise,
+    for name in args.cases.split(",") if args.cases else cases:
+        over, want, effect, key, true = cases[name]
+        i = list(cases).index(name)  # a case's log is the same whichever cases run with it
+        spec = LogSpec(seconds=args.seconds, episodes=args.episodes, seed=seed + i, noise=args.noise,
                        **{"controller": "sines", **over})
         write_log(root / f"{i}.csv", spec)
         path, _ = import_log(root / f"{i}.csv", root / f"d{i}", ImportConfig(50, 60.0, 1.5, 33.5))
@@ -173,6 +201,8 @@ def main() -> None:
             tally["within_15pct"][1] += 1
             tally["removed_80pct"][1] += 1
         print(line + f" added={[a.name for a in d.added]} {seconds:.0f}s", flush=True)
+        if d.verdict != want:
+            print(f"  {d.verdict}: {d.reason}", flush=True)
     for k, (good, n) in tally.items():
         print(f"{k}={good}/{n}")
 

@@ -407,3 +407,42 @@ def test_candidates_one_step_cannot_tell_apart_are_ordered_by_the_longer_predict
     assert tied_with_best([friction, worse]) == [] and prefer_longer([friction, worse])[0] is friction
     gains = candidate("pd_gains", 1.3, 0.501, 0.9)           # more parameters than the best: not tied
     assert prefer_longer([friction, gains])[0] is friction
+
+
+def test_a_small_effect_added_under_sensor_noise_is_named_in_the_verdict():
+    """--auto added an effect to a model whose one-step error is mostly noise (< 15 % above the
+    floor): the verdict names it (before, it said "none" beside the added effect); with more
+    structure left the same addition is "unexplained"; a set-aside best candidate says why."""
+    from acn.models.diagnose.add import Added
+    from acn.models.diagnose.compare import Comparison
+    from acn.models.diagnose.fitting import EffectFit
+    from acn.models.diagnose.pipeline import verdict
+    from acn.models.diagnose.rank import Candidate, Judgement
+
+    rng = np.random.default_rng(0)
+
+    def fit(name: str, value: float) -> EffectFit:
+        effect = get_effect(name)
+        values = {p.name: np.asarray(value) for p in effect.parameters}
+        return EffectFit(effect, "shared", values, list(values), np.full(len(values), value), np.zeros(len(values)),
+                         Model("mujoco"), cost=0.0, evaluations=0, nominal={p.name: p.nominal for p in effect.parameters})
+
+    def comparison(one: float, longest: float) -> Comparison:
+        residual = rng.normal(0.0, one, (300, 4))
+        return Comparison(Model("mujoco"), {}, {1: np.full(4, one), 25: np.full(4, longest)}, np.arange(300),
+                          residual, np.zeros((300, 43)), 0)
+
+    before, after = comparison(0.43, 0.16), comparison(0.424, 0.138)
+    mse, mse_after = 0.43 ** 2, 0.424 ** 2
+    friction = fit("joint_friction", 0.12)
+    judged = Judgement(mse, mse_after, 1 - mse_after / mse, 7.6, True, after.residual)
+    added = [Added(friction, judged, before, after)]
+    ranking = [Candidate(friction, judged, judged.removed)]
+    v, reason, named = verdict(before, mse, 0.89 * mse, ranking, added, automatic=True)
+    assert v == "effect" and named == ("joint_friction",), reason
+    assert "joint_friction explains" in reason and "25-step open-loop error falls by 26%" in reason
+    v, reason, _ = verdict(before, mse, 0.6 * mse, ranking, added, automatic=True)
+    assert v == "unexplained", reason
+    offsets = fit("encoder_offset", 1e-4)  # below the smallest realistic offset: set aside
+    v, reason, _ = verdict(before, mse, 0.89 * mse, [Candidate(offsets, judged, judged.removed)], [], automatic=True)
+    assert v == "none" and "encoder_offset" in reason and "below 3/4 of the smallest realistic" in reason, reason

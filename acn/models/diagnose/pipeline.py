@@ -7,7 +7,9 @@ file, the HTML report and ``acn-view`` all read.
 Verdict:
 - ``effect``: a candidate (the best one whose held-out improvement is significant and whose
   magnitude is plausible: ``rank.implausible``) explains at least 70 % of the error above the
-  noise floor; with ``--auto``, or the effects added one after the other do;
+  noise floor; with ``--auto``, or the effects added one after the other do, or they were
+  added to a model whose error is mostly noise (less than 15 % structured: a small effect under
+  sensor noise, which ``--auto`` adds only where it lowers the longest-horizon error too);
 - ``unexplained``: otherwise, when at least 15 % of the error is structured (above the floor);
 - ``none``: the model matches within the noise: the error is zero, or less structured than
   that and no plausible candidate explains it.
@@ -30,10 +32,11 @@ import numpy as np
 
 from acn.datasets import checks
 from acn.datasets.measurements import Measurements
-from acn.models.diagnose.add import Added, Chain, add_effect, auto
+from acn.models.diagnose.add import Added, Chain, add_effect, auto, longest_removed
 from acn.models.diagnose.compare import Comparison, compare, floor_of
 from acn.models.diagnose.problem import DiagnoseConfig, Problem, prepare
-from acn.models.diagnose.rank import STRUCTURED_SHARE, Candidate, doubt, explained_share, one_step_only, rank
+from acn.models.diagnose.rank import (STRUCTURED_SHARE, Candidate, doubt, explained_share, implausible,
+                                      one_step_only, rank)
 from acn.models.diagnose.where import breakdown
 from acn.toolkit.effects import Model, get_effect
 
@@ -82,8 +85,16 @@ def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Cand
     if automatic and added:
         share = explained_share(mse, added[-1].judgement.mse_after, floor_mse)
         names = " + ".join(a.name for a in added)
+        explain = f"{names} explains" if len(added) == 1 else f"{names} explain"
         if share >= EFFECT_SHARE:
-            return "effect", f"{names} explain {share:.0%} of the error above the noise floor", \
+            return "effect", f"{explain} {share:.0%} of the error above the noise floor", \
+                tuple(a.name for a in added)
+        if structured < STRUCTURED_SHARE:  # a small effect under sensor noise: what is left is noise
+            longer = longest_removed(before, added[-1].after)
+            gain = f" (the {max(before.channel_error)}-step open-loop error falls by {longer:.0%})" if longer else ""
+            return "effect", (f"{explain} {share:.0%} of the error above the noise floor{gain}, and what is "
+                              f"left matches within the noise: the one-step error is mostly sensor noise (only "
+                              f"{max(structured, 0):.0%} of it is predictable from the state and actions)"), \
                 tuple(a.name for a in added)
     plausible = [c for c in ranking if c.judgement.significant and not doubt(c)]
     top = plausible[0] if plausible else None
@@ -100,6 +111,8 @@ def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Cand
                if top is not None else f"the best candidate, {best.name}, {doubt(best)}")
         return "unexplained", f"{structured:.0%} of the error is structured (above the noise floor); {why}", ()
     extra = f"; the best candidate, {best.name}, removes {best.judgement.removed:.1%} of it" if best else ""
+    if best is not None and implausible(best.fit):
+        extra += f" but {implausible(best.fit)}"
     noise = [c for c in ranking if one_step_only(c)]
     if noise:
         extra += f"; {noise[0].name} {one_step_only(noise[0])}"
