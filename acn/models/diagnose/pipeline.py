@@ -91,7 +91,7 @@ def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Cand
                 tuple(a.name for a in added)
         if structured < STRUCTURED_SHARE:  # a small effect under sensor noise: what is left is noise
             longer = longest_removed(before, added[-1].after)
-            gain = f" (the {max(before.channel_error)}-step open-loop error falls by {longer:.0%})" if longer else ""
+            gain = f" (the {max(before.channel_error)}-step open-loop error falls by {longer:.0%})" if longer and longer > 0 else ""
             return "effect", (f"{explain} {share:.0%} of the error above the noise floor{gain}, and what is "
                               f"left matches within the noise: the one-step error is mostly sensor noise (only "
                               f"{max(structured, 0):.0%} of it is predictable from the state and actions)"), \
