@@ -55,9 +55,15 @@ def _joints(attr: str, value: float):
     return edit
 
 
-def _payload(spec):  # a separate body welded to the trunk (acn combines it into the trunk's inertia)
-    body = spec.body("trunk").add_body(name="payload", pos=[0.04, -0.02, 0.03])
-    body.mass, body.inertia, body.explicitinertial = 2.0, [1e-4, 1e-4, 1e-4], True
+def _payload_at(mass: float, pos: list[float], inertia: float = 1e-3):
+    """A separate body welded to the trunk (acn combines it into the trunk's inertia)."""
+    def edit(spec):
+        body = spec.body("trunk").add_body(name="payload", pos=pos)
+        body.mass, body.inertia, body.explicitinertial = mass, [inertia] * 3, True
+    return edit
+
+
+_payload = _payload_at(2.0, [0.04, -0.02, 0.03], inertia=1e-4)
 
 
 def _floor(value):
@@ -83,13 +89,6 @@ CASES = {
     "backlash": ({"deadband": 0.04}, "effect", "backlash", "value", 0.04),
     "springs (outside)": ({"spec_edit": _joints("stiffness", 3.0)}, "unexplained", None, None, None),
 }
-
-
-def _payload_at(mass: float, pos: list[float]):
-    def edit(spec):
-        body = spec.body("trunk").add_body(name="payload", pos=pos)
-        body.mass, body.inertia, body.explicitinertial = mass, [1e-3, 1e-3, 1e-3], True
-    return edit
 
 
 # The same kind of logs at values the rules were never looked at on: the other side of nominal
