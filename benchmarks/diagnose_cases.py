@@ -93,7 +93,8 @@ CASES = {
 
 # The same kind of logs at values the rules were never looked at on: the other side of nominal
 # (stronger motors, stiffer gains), larger and smaller magnitudes, a payload behind the trunk's
-# centre, another gait without an effect; other seeds (700 + i). Selected with --other.
+# centre, another gait without an effect, a torque limit the controller rarely reaches; other
+# seeds (700 + i). Selected with --other.
 OTHER = {
     "damping 1.0": ({"spec_edit": _joints("damping", 1.0)}, "effect", "joint_damping", "value", 1.0),
     "strength 1.2": ({"strength": 1.2}, "effect", "motor_strength", "scale", 1.2),
@@ -104,6 +105,7 @@ OTHER = {
     "armature 0.01": ({"spec_edit": _joints("armature", 0.01)}, "effect", "armature", "value", 0.01),
     "floor 0.5 (pace)": ({"spec_edit": _floor(0.5), "controller": "pace"}, "effect", "ground_friction", "value", 0.5),
     "nominal (pace)": ({"controller": "pace"}, "none", None, None, None),
+    "torque limit 20": ({"torque_limit": 20.0}, "effect", "torque_limit", "value", 20.0),  # reached in ~4 % of steps
 }
 
 

@@ -446,3 +446,61 @@ def test_a_small_effect_added_under_sensor_noise_is_named_in_the_verdict():
     offsets = fit("encoder_offset", 1e-4)  # below the smallest realistic offset: set aside
     v, reason, _ = verdict(before, mse, 0.89 * mse, [Candidate(offsets, judged, judged.removed)], [], automatic=True)
     assert v == "none" and "encoder_offset" in reason and "below 3/4 of the smallest realistic" in reason, reason
+
+
+def test_an_effect_that_acts_on_few_steps_is_significant_by_its_longest_horizon_gain():
+    """``rank.uneven``: where no plausible candidate is significant at one step, the plausible ones
+    that remove >= 2 % are checked at the longest horizon, and one that removes a quarter of that
+    error is significant (a torque limit reached in a few per cent of the steps); the verdict
+    says so. Not when another plausible candidate is significant at one step, nor below 25 %."""
+    from acn.models.diagnose.fitting import EffectFit
+    from acn.models.diagnose.pipeline import verdict
+    from acn.models.diagnose.rank import Candidate, Judgement, uneven
+
+    residual = np.zeros((10, 4))
+
+    def candidate(name: str, value: float, removed: float, z: float, significant: bool) -> Candidate:
+        effect = get_effect(name)
+        values = {p.name: np.asarray(value) for p in effect.parameters}
+        fit = EffectFit(effect, "shared", values, list(values), np.full(len(values), value), np.zeros(len(values)),
+                        Model("mujoco"), cost=0.0, evaluations=0, nominal={p.name: p.nominal for p in effect.parameters})
+        j = Judgement(1.0, 1.0 - removed, removed, z, significant, residual)
+        return Candidate(fit, j, removed)
+
+    class Horizon:  # the open-loop check with given gains (``LongestHorizon`` simulates them)
+        steps = 25
+
+        def __init__(self, gains: dict[int, float]):
+            self.gains, self.asked = gains, []
+
+        def gain(self, model) -> float:
+            self.asked.append(id(model))
+            return self.gains[id(model)]
+
+    def ranking():
+        limit = candidate("torque_limit", 19.8, 0.041, 1.3, False)          # plausible, uneven
+        offsets = candidate("encoder_offset", 1e-4, 0.064, 6.4, True)      # significant, too small
+        damping = candidate("joint_damping", 0.3, 0.01, 2.0, False)        # plausible, removes < 2 %
+        return [limit, offsets, damping]
+
+    out = ranking()
+    horizon = Horizon({id(out[0].fit.model): 0.48})
+    uneven(horizon, out)
+    assert out[0].judgement.significant and out[0].judgement.by_longest and out[0].longer_gain == 0.48
+    assert horizon.asked == [id(out[0].fit.model)]  # damping removes too little to be checked
+    from acn.models.diagnose.compare import Comparison
+    before = Comparison(Model("mujoco"), {}, {1: np.full(4, 1.0), 25: np.full(4, 0.5)}, np.arange(10), residual + 1,
+                        np.zeros((10, 43)), 0)
+    v, reason, named = verdict(before, 1.0, 0.95, out, [], automatic=False)  # the limit explains 82 %
+    assert v == "effect" and named == ("torque_limit",), reason
+    assert "removes 48% of the longest-horizon open-loop error" in reason and "acts on few steps" in reason
+
+    out = ranking()
+    uneven(Horizon({id(out[0].fit.model): 0.2}), out)  # a fifth of the long error: not enough
+    assert not out[0].judgement.significant and out[0].longer_gain == 0.2
+
+    out = ranking()
+    out[2].judgement.significant = True  # a plausible candidate significant at one step: nothing to check
+    horizon = Horizon({})
+    uneven(horizon, out)
+    assert horizon.asked == [] and not out[0].judgement.significant

@@ -4,9 +4,10 @@
 joint type, per leg, per joint: a finer one must beat the coarser one significantly on
 held-out rows), refits on more rows, and compares the model before and after at every
 horizon. ``auto`` repeats rank -> add while the best plausible candidate's held-out
-improvement is larger than the noise (significant, ``rank.judge``) and removes at least 5 % of
-the error: after the right effects, a noisy log still lets armature or damping fit a few
-per cent of the contact bias that noise in joint readings leaves. An effect whose final fit
+improvement is larger than the noise (significant, ``rank.judge``, or at the longest horizon:
+``rank.uneven``) and removes at least 5 % of the error: after the right effects, a noisy log
+still lets armature or damping fit a few per cent of the contact bias that noise in joint
+readings leaves. An effect whose final fit
 lowers the one-step error but not the open-loop error at the longest horizon is not added
 (``rank.one_step_only``); the next candidate is tried. Then ``revisit`` judges each added
 effect again beside the others, and ``other_starts`` runs the same greedy chain from the
@@ -22,7 +23,7 @@ import numpy as np
 from acn.models.diagnose.compare import Comparison, compare
 from acn.models.diagnose.fitting import EffectFit, default_granularity, fit_effect, instrumental_refit, refittable
 from acn.models.diagnose.problem import DiagnoseConfig, Problem
-from acn.models.diagnose.rank import (PARSIMONY_Z, Candidate, Judgement, doubt, fits_noise, implausible, judge,
+from acn.models.diagnose.rank import (LARGE_IMPROVEMENT, PARSIMONY_Z, Candidate, Judgement, doubt, fits_noise, implausible, judge,
                                       paired_z, rank)
 from acn.toolkit.effects import Model, get_effect
 
@@ -101,6 +102,13 @@ def longer_gain(step: Added) -> float | None:
     return longest_removed(step.before, step.after)
 
 
+def significant(step: Added) -> bool:
+    """Whether the added effect's final fit is significant as ``rank`` judges a candidate: at one
+    step (``rank.judge``) or by removing ``LARGE_IMPROVEMENT`` of the longest-horizon open-loop
+    error (``rank.uneven``)."""
+    return step.judgement.significant or (longer_gain(step) or 0.0) >= LARGE_IMPROVEMENT
+
+
 @dataclass
 class Chain:
     """Effects added one after the other by --auto, and how well the result predicts."""
@@ -155,7 +163,7 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
         if progress:
             progress(f"adding {best.name}", None)
         step = add_effect(problem, current.model, best.name, cfg, judge_rows, residual, current, start=best.fit)
-        if not step.judgement.significant or implausible(step.fit):
+        if not significant(step) or implausible(step.fit):
             break
         if fits_noise(longer_gain(step)):
             noise_fits.add(best.name)  # rank.one_step_only, found on the refitted effect: try the next one

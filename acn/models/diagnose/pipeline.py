@@ -102,7 +102,7 @@ def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Cand
         skipped = [c.name for c in ranking[: ranking.index(top)]]
         also = f"; ranked above it but set aside: {', '.join(skipped)}" if skipped else ""
         return "effect", (f"{top.name} explains {top.judgement.explained(floor_mse):.0%} of the error above the noise "
-                          f"floor (held-out improvement {top.judgement.z:.1f} standard errors){also}"), (top.name,)
+                          f"floor ({evidence(top)}){also}"), (top.name,)
     best = ranking[0] if ranking else None
     if structured >= STRUCTURED_SHARE:
         why = ("no candidate improves held-out predictions significantly" if best is None
@@ -118,6 +118,14 @@ def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Cand
         extra += f"; {noise[0].name} {one_step_only(noise[0])}"
     return "none", (f"the model matches within the noise: only {max(structured, 0):.0%} of the error is predictable "
                     f"from the state and actions and no plausible effect explains it{extra}"), ()
+
+
+def evidence(c: Candidate) -> str:
+    """Why ``c``'s held-out improvement is significant, in words."""
+    if c.judgement.by_longest:
+        return (f"it removes {c.longer_gain:.0%} of the longest-horizon open-loop error; at one step its held-out "
+                f"improvement is uneven, {c.judgement.z:.1f} standard errors: it acts on few steps")
+    return f"held-out improvement {c.judgement.z:.1f} standard errors"
 
 
 def findings_note(findings: list[checks.Finding], named: tuple[str, ...]) -> str:

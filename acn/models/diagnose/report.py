@@ -13,7 +13,8 @@ JSON keys (the machine-readable contract):
   ``free_parameters`` (``value``, ``stderr`` and ``identified`` each: false when the standard
   error exceeds half the largest realistic magnitude, ``rank.unidentified``), ``explained``
   (share 0..1 of the error above the noise floor), ``removed`` (share of the whole error),
-  ``z``, ``significant``, ``score``, ``implausible`` (why it cannot be the explanation, "" if it
+  ``z``, ``significant``, ``significant_by`` (``"one step"``, ``"longest horizon"``: ``rank.uneven``;
+  null when not significant), ``score``, ``implausible`` (why it cannot be the explanation, "" if it
   can: ``rank.doubt``), ``longest_horizon_removed`` (share of the open-loop error at the
   longest horizon it removes; null where not checked: ``rank.screen``);
 - ``added`` (with ``--add`` / ``--auto``): in order, ``name``, ``params``, ``error_before`` and
@@ -84,11 +85,17 @@ def _longer(c: Candidate) -> str:
     return "" if c.longer_gain is None else f"{c.longer_gain:+.0%}"
 
 
+def _significant(c: Candidate) -> str:
+    """yes / no, and "yes (longest horizon)" for an effect significant by its long prediction only."""
+    return ("yes (longest horizon)" if c.judgement.by_longest else "yes") if c.judgement.significant else "no"
+
+
 def _candidate(c: Candidate, floor_mse: float) -> dict:
     j = c.judgement
     return {"name": c.name, "params": c.fit.effect.to_json(c.fit.values), "granularity": c.fit.granularity,
             "free_parameters": _free(c.fit), "explained": round(j.explained(floor_mse), 4),
             "removed": round(j.removed, 4), "z": round(j.z, 2), "significant": j.significant,
+            "significant_by": ("longest horizon" if j.by_longest else "one step") if j.significant else None,
             "implausible": doubt(c), "score": round(c.score, 4),
             "longest_horizon_removed": None if c.longer_gain is None else round(c.longer_gain, 4)}
 
@@ -172,7 +179,7 @@ def terminal(d: Diagnosis) -> str:
         j = c.judgement
         params = _params_text(c.fit)
         rows.append([c.name, c.fit.granularity, f"{j.explained(d.floor_mse):.0%}", f"{j.removed:+.1%}", f"{j.z:.1f}",
-                     "yes" if j.significant else "no", _longer(c), params])
+                     _significant(c), _longer(c), params])
     out.append(_table(["effect", "fitted as", "explained", "error removed", "z", "significant",
                        f"{max(d.before.error)}-step removed", "parameters"], rows))
     out += [f"set aside: {c.name} {doubt(c)}" for c in d.ranking if c.judgement.significant and doubt(c)]
