@@ -7,9 +7,8 @@ horizon. ``auto`` repeats rank -> add while the best plausible candidate's held-
 improvement is larger than the noise (significant, ``rank.judge``, or at the longest horizon:
 ``rank.uneven``) and removes at least 5 % of the error: after the right effects, a noisy log
 still lets armature or damping fit a few per cent of the contact bias that noise in joint
-readings leaves. An effect whose final fit
-lowers the one-step error but not the open-loop error at the longest horizon is not added
-(``rank.one_step_only``); the next candidate is tried. Then ``revisit`` judges each added
+readings leaves. An effect whose final fit lowers the one-step error but not the open-loop
+error at the longest horizon is not added (``rank.one_step_only``); the next candidate is tried. Then ``revisit`` judges each added
 effect again beside the others, and ``other_starts`` runs the same greedy chain from the
 next-best first candidates, keeping one that predicts clearly better.
 """
@@ -23,8 +22,8 @@ import numpy as np
 from acn.models.diagnose.compare import Comparison, compare
 from acn.models.diagnose.fitting import EffectFit, default_granularity, fit_effect, instrumental_refit, refittable
 from acn.models.diagnose.problem import DiagnoseConfig, Problem
-from acn.models.diagnose.rank import (LARGE_IMPROVEMENT, PARSIMONY_Z, Candidate, Judgement, doubt, fits_noise, implausible, judge,
-                                      paired_z, rank)
+from acn.models.diagnose.rank import (LARGE_IMPROVEMENT, PARSIMONY_Z, Candidate, Judgement, doubt, fits_noise,
+                                      implausible, judge, paired_z, rank)
 from acn.toolkit.effects import Model, get_effect
 
 AUTO_MIN_EXPLAINED = 0.05  # --auto stops when the best candidate explains less of what is left

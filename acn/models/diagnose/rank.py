@@ -281,7 +281,8 @@ def uneven(horizon: LongestHorizon, ranking: list[Candidate]) -> None:
     physics steps, the fitted limit (19.8) removed 4.1 % of the held-out one-step error (z 1.3,
     not significant) and 48 % of the 25-step open-loop error. Fitting the noise in the start
     states does the opposite (it raises the long error: ``one_step_only``); on five noisy logs
-    without an effect, no plausible candidate removed 2 % of the one-step error.
+    without an effect, no plausible candidate removed 2 % of the one-step error. On another log
+    of the same limit (another seed) it did not fire: the verdict there is still "none".
     """
     if horizon.steps <= 1 or any(c.judgement.significant and not doubt(c) for c in ranking):
         return
