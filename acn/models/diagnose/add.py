@@ -8,9 +8,10 @@ improvement is larger than the noise (significant, ``rank.judge``, or at the lon
 ``rank.uneven``) and removes at least 5 % of the error: after the right effects, a noisy log
 still lets armature or damping fit a few per cent of the contact bias that noise in joint
 readings leaves. An effect whose final fit lowers the one-step error but not the open-loop
-error at the longest horizon is not added (``rank.one_step_only``); the next candidate is tried. Then ``revisit`` judges each added
-effect again beside the others, and ``other_starts`` runs the same greedy chain from the
-next-best first candidates, keeping one that predicts clearly better.
+error at the longest horizon is not added (``rank.one_step_only``); the next candidate is
+tried. Then ``revisit`` judges each added effect again beside the others, and ``other_starts``
+runs the same greedy chain from the next-best first candidates, keeping one that predicts
+clearly better.
 """
 
 from __future__ import annotations
