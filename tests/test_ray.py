@@ -52,11 +52,13 @@ def ray_address():
     before = set(Path(tempfile.gettempdir()).glob("acn-ray-*"))
     with parallel.ray_session(RAY) as ray:
         new = set(Path(tempfile.gettempdir()).glob("acn-ray-*")) - before
-        # this session's (Ray links session_latest in it): another process may make one meanwhile
-        ours = [t for t in new if (t / "session_latest").exists()] or sorted(new)
+        address = ray.get_runtime_context().gcs_address
+        # this session's: another process (the other test worker) may start a Ray instance
+        # meanwhile; our instance's processes are started with --gcs-address=<our address>
+        ours = [t for t in new if any(f"--gcs-address={address}" in c for c in _ray_processes(str(t)))] or sorted(new)
         assert len(ours) == 1, f"expected one new Ray temp dir, found {sorted(map(str, new))}"
         temp_dir = str(ours[0])
-        yield ray.get_runtime_context().gcs_address
+        yield address
     deadline = time.time() + 20
     while _ray_processes(temp_dir) and time.time() < deadline:
         time.sleep(0.5)

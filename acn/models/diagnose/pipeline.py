@@ -113,7 +113,7 @@ def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Cand
     extra = f"; the best candidate, {best.name}, removes {best.judgement.removed:.1%} of it" if best else ""
     if best is not None and implausible(best.fit):
         extra += f" but {implausible(best.fit)}"
-    noise = [c for c in ranking if one_step_only(c)]
+    noise = sorted((c for c in ranking if one_step_only(c)), key=lambda c: -c.judgement.removed)  # the most convincing
     if noise:
         extra += f"; {noise[0].name} {one_step_only(noise[0])}"
     return "none", (f"the model matches within the noise: only {max(structured, 0):.0%} of the error is predictable "

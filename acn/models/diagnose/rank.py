@@ -267,7 +267,7 @@ def rank(problem: Problem, model: Model, cfg: DiagnoseConfig, judge_rows: np.nda
     longer_gains(horizon, tied_with_best(out))
     out = prefer_longer(out)
     uneven(horizon, out)
-    return out
+    return sorted(out, key=lambda c: bool(one_step_only(c)))  # those ``uneven`` found fitting noise last, too
 
 
 def uneven(horizon: LongestHorizon, ranking: list[Candidate]) -> None:
