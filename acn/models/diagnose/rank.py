@@ -263,11 +263,16 @@ def rank(problem: Problem, model: Model, cfg: DiagnoseConfig, judge_rows: np.nda
     horizon = LongestHorizon(problem, model, cfg)
     for _ in range(2):  # twice: the simpler candidate put in the best one's place is checked too
         screen(horizon, out)
-        out = prefer_simpler(sorted(out, key=lambda c: bool(one_step_only(c))))  # noise fits last
+        out = prefer_simpler(noise_fits_last(out))
     longer_gains(horizon, tied_with_best(out))
     out = prefer_longer(out)
     uneven(horizon, out)
-    return sorted(out, key=lambda c: bool(one_step_only(c)))  # those ``uneven`` found fitting noise last, too
+    return noise_fits_last(out)  # those ``uneven`` found, too
+
+
+def noise_fits_last(ranking: list[Candidate]) -> list[Candidate]:
+    """``ranking`` with the candidates found fitting the noise (``one_step_only``) moved to the end, in order."""
+    return sorted(ranking, key=lambda c: bool(one_step_only(c)))
 
 
 def uneven(horizon: LongestHorizon, ranking: list[Candidate]) -> None:
