@@ -546,6 +546,10 @@ def diagnose_parser() -> argparse.ArgumentParser:
     p.add_argument("--auto-alternatives", type=_nonneg_int, default=d.auto_alternatives, metavar="N",
                    help="with --auto: also start from the next N candidates and keep a chain that predicts clearly "
                    "better (one effect can stand in for two)")
+    p.add_argument("--finest", default=d.finest, metavar="{shared,type,leg,joint}",
+                   help="the finest granularity an added per-joint effect may get: one value for every joint, one "
+                   "per joint type, leg or joint (a finer one is kept where it predicts significantly better; "
+                   f"coarser is quicker; default {d.finest})")
     p.add_argument("--save-model", type=Path, default=None, metavar="FILE", help="write the updated model JSON")
     p.add_argument("--json", type=Path, default=None, metavar="FILE", help="write the machine-readable result")
     p.add_argument("--report", type=Path, default=None, metavar="FILE.html", help="write the HTML report")
@@ -599,7 +603,8 @@ def diagnose_main(argv: list[str] | None = None) -> int:
             raise UserError(f"corrector directory {args.corrector} does not exist")
         model = Model.parse(args.model)
         cfg = DiagnoseConfig(horizons=horizons, candidates=candidates, seed=args.seed,
-                             auto_alternatives=args.auto_alternatives)
+                             auto_alternatives=args.auto_alternatives, finest=args.finest)
+        cfg.validate()
         data = load_measurements(args.measured, side=args.side)
         if args.closed_loop:  # refuse a log that cannot be re-run before the diagnosis, not after
             from acn.models.diagnose.transfer import robot_config

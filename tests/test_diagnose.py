@@ -4,6 +4,7 @@ nominal data gives "none", physics outside the catalogue gives "unexplained"."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -88,7 +89,11 @@ def test_gains_scaled_alike_are_named_the_simpler_motor_strength(tmp_path):
 
 def test_two_effects_together_are_both_found(tmp_path):
     data = measured(tmp_path, {"actuator_latency": {"seconds": 0.01}, "joint_damping": {"value": 0.5}})
-    d = diagnose(data, Model.parse("mujoco"), FAST, automatic=True)
+    # Time: among the candidates that look like them, one value for every joint (--auto ranks and
+    # adds 6 times here; the whole catalogue at every granularity: benchmarks/diagnose_cases.py --pairs)
+    cfg = replace(FAST, finest="shared", candidates=("actuator_latency", "joint_damping", "joint_friction",
+                                                     "armature", "pd_gains", "motor_strength"))
+    d = diagnose(data, Model.parse("mujoco"), cfg, automatic=True)
     names = [a.name for a in d.added]
     assert set(names[:2]) == {"actuator_latency", "joint_damping"}, names
     assert [c.names for c in d.chains if c.kept] == [names], [c.to_json() for c in d.chains]  # the chain reported
@@ -110,11 +115,15 @@ def test_a_richer_effect_gives_way_to_a_simpler_one_beside_the_others(tmp_path):
 
     data = measured(tmp_path, {"motor_strength": {"scale": 0.85}, "joint_friction": {"value": 0.2}})
     nominal = Model.parse("mujoco")
-    d = diagnose(data, nominal, FAST, add=["pd_gains", "joint_friction"])
+    # among the candidates that look like them, one value for every joint (time)
+    cfg = replace(FAST, finest="shared", candidates=("pd_gains", "joint_friction", "motor_strength", "joint_damping",
+                                                     "armature", "actuator_latency"))
+    d = diagnose(data, nominal, cfg, add=["pd_gains", "joint_friction"])
     assert [a.name for a in d.added] == ["pd_gains", "joint_friction"]
     residual = d.problem.residual_of(nominal.sim_config(d.problem.control), d.judge_rows)
-    chain = revisit(d.problem, d.before, FAST, d.judge_rows, residual, d.added)
+    chain = revisit(d.problem, d.before, cfg, d.judge_rows, residual, d.added)
     assert [a.name for a in chain] == ["motor_strength", "joint_friction"]
+    assert all(a.fit.granularity == "shared" for a in (*d.added, *chain))  # --finest shared
     values = {t.name: t.values for t in chain[-1].after.model.effects}
     assert close(values["motor_strength"]["scale"], 0.85, rel=0.05) and close(values["joint_friction"]["value"], 0.2)
     assert chain[-1].after.headline <= 1.1 * d.final.headline  # as good as the richer chain
@@ -125,14 +134,12 @@ def test_two_effects_one_stood_in_for_are_found_from_another_start(tmp_path):
     noisy log: a higher derivative gain is damping, a lower proportional gain sags like a heavier
     trunk). Started from the next candidates instead, a chain with the payload predicts the
     held-out rows and 5-step rollouts clearly better and replaces it (``add.other_starts``)."""
-    from dataclasses import replace
-
     from acn.models.diagnose.add import other_starts
 
     data = measured(tmp_path, {"payload": {"mass": 2.0}, "joint_damping": {"value": 0.4}})
     nominal = Model.parse("mujoco")
-    # the runner-up only (joint damping here), among the candidates that matter (time)
-    cfg = replace(FAST, auto_alternatives=1,
+    # the runner-up only (joint damping here), among the candidates that matter, one value for every joint (time)
+    cfg = replace(FAST, auto_alternatives=1, finest="shared",
                   candidates=("pd_gains", "payload", "joint_damping", "joint_friction", "motor_strength"))
     d = diagnose(data, nominal, cfg, add=["pd_gains"])
     residual = d.problem.residual_of(nominal.sim_config(d.problem.control), d.judge_rows)
@@ -158,6 +165,10 @@ def test_pybullet_measurements_with_a_mujoco_model_still_find_the_effect(tmp_pat
     assert close(d.ranking[0].fit.values["seconds"], 0.02, rel=0.25)
 
 
+# The tests of these logs run on one test process (`make test`'s -n 2): the logs are made once.
+NOISY_LOGS = pytest.mark.xdist_group("noisy_logs")
+
+
 @pytest.fixture(scope="module")
 def noisy_logs(tmp_path_factory):
     """Logs from code outside acn-collect (other controller, sensor noise), imported with acn-import."""
@@ -176,6 +187,7 @@ def noisy_logs(tmp_path_factory):
     return out
 
 
+@NOISY_LOGS
 def test_noisy_nominal_log_is_none(noisy_logs):
     d = diagnose(load_measurements(noisy_logs["nominal"]), Model.parse("mujoco"), FAST)
     assert d.verdict == "none", d.reason
@@ -201,12 +213,14 @@ def test_effects_that_fit_the_noise_in_the_start_states_are_set_aside(tmp_path):
     assert d.verdict == "none" and "encoder_offset improves the one-step prediction only" in d.reason, d.reason
 
 
+@NOISY_LOGS
 def test_noisy_log_from_another_controller_finds_the_latency(noisy_logs):
     d = diagnose(load_measurements(noisy_logs["latency"]), Model.parse("mujoco"), FAST, add=["actuator_latency"])
     assert d.ranking[0].name == "actuator_latency" and d.verdict == "effect", d.reason
     assert close(d.added[0].fit.values["seconds"], 0.015, rel=0.15)
 
 
+@NOISY_LOGS
 def test_noisy_joint_readings_do_not_bias_the_fitted_friction(noisy_logs):
     """Least squares from noisy start states over-estimates friction; the instrumental refit does not."""
     from acn.models.diagnose.fitting import fit_effect, instrumental_refit
@@ -224,6 +238,7 @@ def test_noisy_joint_readings_do_not_bias_the_fitted_friction(noisy_logs):
     assert abs(iv_value - 0.3) <= 0.2 * 0.3 and iv_value < ls_value - 0.01, (ls_value, iv_value)
 
 
+@NOISY_LOGS
 def test_physics_outside_the_catalogue_is_unexplained(noisy_logs):
     """Joint springs are in no candidate: whatever fits best leaves structure, or needs absurd values."""
     d = diagnose(load_measurements(noisy_logs["springs"]), Model.parse("mujoco"), FAST)
@@ -297,6 +312,7 @@ def test_a_log_that_breaks_a_convention_is_diagnosed_with_its_data_checks(tmp_pa
     (["--model", "gazebo"], "neither a backend"),
     (["--horizons", "1,x"], "--horizons"),
     (["--corrector", "c"], "give --closed-loop"),
+    (["--finest", "wheel"], "finest must be one of shared, type, leg, joint"),
 ])
 def test_cli_bad_input_is_one_line(tmp_path, capsys, args, message):
     from acn.cli import diagnose_main

@@ -16,6 +16,9 @@ from acn.models import Corrector
 from acn.models.fit import FitConfig, fit, save
 from acn.toolkit.collector import CollectConfig
 
+# This module runs on one test process (`make test`'s -n 2): the paired data and the fitted correctors are made once.
+pytestmark = pytest.mark.xdist_group("fit")
+
 FAST = dict(epochs=8, eval_episodes=1, eval_seconds=0.4)
 LABELS = dict(label_iterations=1, label_broyden=1, rounds=0)  # cheaper labels, no closed-loop rounds
 

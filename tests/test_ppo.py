@@ -24,6 +24,9 @@ from acn.toolkit.envs import ENV_IDS, A1Env, EnvConfig
 from acn.toolkit.reward import REWARD_WEIGHTS, weighted
 from acn.toolkit.state import SLICES
 
+# This module runs on one test process (`make test`'s -n 2): the tiny PPO run and its corrector are made once.
+pytestmark = pytest.mark.xdist_group("ppo")
+
 TINY = ["--set", "seconds=1", "--set", "eval_seconds=1", "--set", "refit_seconds=1", "--set", "n_steps=128",
         "--set", "batch_size=64", "--set", "n_epochs=4", "--set", "refit_episodes=3", "--set", "fit_epochs=2",
         "--set", "checkpoint_every=512", "--eval-episodes", "2", "--final-eval-episodes", "3"]

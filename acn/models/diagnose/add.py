@@ -21,7 +21,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from acn.models.diagnose.compare import Comparison, compare
-from acn.models.diagnose.fitting import EffectFit, default_granularity, fit_effect, instrumental_refit, refittable
+from acn.models.diagnose.fitting import (GRANULARITIES, EffectFit, default_granularity, fit_effect, instrumental_refit,
+                                         refittable)
 from acn.models.diagnose.problem import DiagnoseConfig, Problem
 from acn.models.diagnose.rank import (LARGE_IMPROVEMENT, PARSIMONY_Z, Candidate, Judgement, doubt, fits_noise,
                                       implausible, judge, paired_z, rank)
@@ -48,21 +49,24 @@ class Added:
         return self.fit.effect.name
 
 
-def _granularities(effect) -> list[str]:
+def _granularities(effect, finest: str) -> list[str]:
+    """Those ``choose_fit`` tries, coarsest first, down to ``finest`` (an effect that is per joint
+    by nature, such as encoder offsets, is fitted per joint whatever ``finest`` says)."""
     if not effect.per_joint:
         return ["shared"]
     if default_granularity(effect) == "joint":
         return ["joint"]
-    return ["shared", "type", "leg", "joint"]
+    return list(GRANULARITIES[: GRANULARITIES.index(finest) + 1])
 
 
 def choose_fit(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, judge_rows: np.ndarray,
                base_residual: np.ndarray, start: EffectFit | None = None) -> tuple[EffectFit, Judgement]:
-    """The effect fitted at the coarsest granularity no finer one significantly beats."""
+    """The effect fitted at the coarsest granularity (down to ``cfg.finest``) no finer one
+    significantly beats."""
     effect = get_effect(name)
     rows = problem.sample(problem.fit_rows, cfg.rank_rows, salt=3)
     best: tuple[EffectFit, Judgement] | None = None
-    for g in _granularities(effect):
+    for g in _granularities(effect, cfg.finest):
         if best is not None and g == "joint" and best[0].granularity == "shared":
             break  # neither joint types nor legs differ: no reason to try 12 values
         seed = start.values if start is not None and start.granularity == g else (best[0].values if best else None)

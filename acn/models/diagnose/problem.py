@@ -42,6 +42,7 @@ class DiagnoseConfig:
     candidates: tuple[str, ...] = EFFECT_NAMES
     auto_max: int = 4              # at most this many effects added by --auto
     auto_alternatives: int = 1     # --auto also starts from the next this many candidates (``add.other_starts``)
+    finest: str = "joint"          # the finest granularity an added per-joint effect may get (``add.choose_fit``)
     threads: int | None = None
     seed: int = 0
 
@@ -53,6 +54,10 @@ class DiagnoseConfig:
                 raise UserError(f"{name} must be >= 8")
         if self.auto_alternatives < 0:
             raise UserError("auto_alternatives must be >= 0")
+        from acn.models.diagnose.fitting import GRANULARITIES
+
+        if self.finest not in GRANULARITIES:
+            raise UserError(f"finest must be one of {', '.join(GRANULARITIES)}, got {self.finest!r}")
 
 
 @dataclass
