@@ -46,6 +46,13 @@ def _ray_processes(temp_dir: str) -> list[str]:
     return out
 
 
+def test_this_module_runs_on_one_test_process(request):
+    """`make test` (--dist loadgroup) keeps an xdist_group on one worker; pytest 9.2 broke that
+    silently (pyproject keeps it below 9.2), and two Ray instances then started at once."""
+    if getattr(request.config.option, "loadgroup", False):  # a pytest-xdist worker under --dist loadgroup
+        assert request.node.nodeid.endswith("@ray"), request.node.nodeid
+
+
 @pytest.fixture(scope="module")
 def ray_address():
     """A local Ray instance (2 CPUs) for the module; yields its address."""
