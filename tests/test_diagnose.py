@@ -57,10 +57,16 @@ CASES = {  # effect -> (hidden params, policy that excites it)
 }
 
 
+# Where the added effect's granularity is chosen among all four (the others: one value for every
+# joint, as hidden; time)
+CHOOSES_GRANULARITY = ("joint_damping", "joint_friction")
+
+
 @pytest.mark.parametrize("name", list(CASES))
 def test_each_hidden_effect_is_ranked_first_fitted_and_removed(tmp_path, name):
     params, policy = CASES[name]
-    d = diagnose(measured(tmp_path, {name: params}, policy), Model.parse("mujoco"), FAST, add=[name])
+    cfg = FAST if name in CHOOSES_GRANULARITY else replace(FAST, finest="shared")
+    d = diagnose(measured(tmp_path, {name: params}, policy), Model.parse("mujoco"), cfg, add=[name])
     assert d.ranking[0].name == name, [(c.name, c.score) for c in d.ranking[:3]]
     assert d.verdict == "effect", d.reason
     fitted = d.added[0].fit.values
@@ -73,6 +79,7 @@ def test_each_hidden_effect_is_ranked_first_fitted_and_removed(tmp_path, name):
         true = np.array([params[k] for k in ("com_x", "com_y", "com_z")])
         assert np.linalg.norm(com - true) <= 0.2 * np.linalg.norm(true), com
     added = d.added[0]
+    assert added.fit.granularity == ("joint" if name == "encoder_offset" else "shared"), added.fit.granularity
     assert added.judgement.removed >= 0.8 and added.judgement.explained(d.floor_mse) >= 0.8
     assert added.after.headline < added.before.headline
 
