@@ -60,8 +60,8 @@ def ray_address():
     with parallel.ray_session(RAY) as ray:
         new = set(Path(tempfile.gettempdir()).glob("acn-ray-*")) - before
         address = ray.get_runtime_context().gcs_address
-        # this session's: another process (the other test worker) may start a Ray instance
-        # meanwhile; our instance's processes are started with --gcs-address=<our address>
+        # this session's: another process on the machine may start a Ray instance meanwhile (the
+        # other test worker did while pytest 9.2 ignored xdist_group); ours run with --gcs-address=<ours>
         ours = [t for t in new if any(f"--gcs-address={address}" in c for c in _ray_processes(str(t)))] or sorted(new)
         assert len(ours) == 1, f"expected one new Ray temp dir, found {sorted(map(str, new))}"
         temp_dir = str(ours[0])
