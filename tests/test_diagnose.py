@@ -430,6 +430,33 @@ def test_candidates_one_step_cannot_tell_apart_are_ordered_by_the_longer_predict
     assert prefer_longer([friction, gains])[0] is friction
 
 
+def test_a_richer_effect_that_wins_only_the_one_step_gives_way_to_a_simpler_one():
+    """Both PD gains beat joint damping at one step by more than the parsimony margin (as with
+    twice the typical sensor noise); damping goes first only if it predicts the longest horizon
+    at least as well: extra parameters that buy one-step accuracy alone fit the noise."""
+    from acn.models.diagnose.fitting import EffectFit
+    from acn.models.diagnose.rank import Candidate, Judgement, LongestHorizon, prefer_simpler
+
+    rng = np.random.default_rng(1)
+
+    def candidate(name: str, error: float, longer: float) -> Candidate:
+        effect = get_effect(name)
+        values = {p.name: np.asarray(1.2) for p in effect.parameters}
+        fit = EffectFit(effect, "shared", values, list(values), np.full(len(values), 1.2), np.zeros(len(values)),
+                        Model("mujoco"), cost=0.0, evaluations=0, nominal={p.name: p.nominal for p in effect.parameters})
+        residual = rng.normal(0.0, error, (600, 4))
+        mse = float(np.mean(residual ** 2))
+        return Candidate(fit, Judgement(1.0, mse, 1.0 - mse, 10.0, True, residual), 1.0 - mse, longer)
+
+    gains, damping = candidate("pd_gains", 0.40, 0.35), candidate("joint_damping", 0.50, 0.47)
+    assert damping.judgement.removed < 0.9 * gains.judgement.removed  # not close at one step
+    horizon = LongestHorizon(None, Model("mujoco"), DiagnoseConfig(horizons=(1, 25)))  # both gains known: no rollout
+    assert prefer_simpler([gains, damping])[0] is gains                # one step only: the richer one
+    assert prefer_simpler([gains, damping], horizon)[0] is damping     # 25 steps: damping as good or better
+    damping.longer_gain = 0.30
+    assert prefer_simpler([gains, damping], horizon)[0] is gains       # the gains predict 25 steps better too
+
+
 def test_a_small_effect_added_under_sensor_noise_is_named_in_the_verdict():
     """--auto added an effect to a model whose one-step error is mostly noise (< 15 % above the
     floor): the verdict names it (before, it said "none" beside the added effect); with more
