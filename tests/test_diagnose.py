@@ -400,22 +400,28 @@ def test_parameters_the_data_cannot_pin_down_are_flagged():
     assert unidentified(fit) == ["value[FR_hip]", "value[FR_thigh]", "value[FR_calf]"]
 
 
+def ranked_candidate(rng: np.random.Generator, name: str, value: float, error: float, longer: float | None):
+    """A significant candidate whose every parameter is ``value`` and whose held-out residuals
+    (600 rows x 4 channels) have spread ``error``; ``longer``: its longest-horizon gain."""
+    from acn.models.diagnose.fitting import EffectFit
+    from acn.models.diagnose.rank import Candidate, Judgement
+
+    effect = get_effect(name)
+    values = {p.name: np.asarray(value) for p in effect.parameters}
+    fit = EffectFit(effect, "shared", values, list(values), np.full(len(values), value), np.zeros(len(values)),
+                    Model("mujoco"), cost=0.0, evaluations=0, nominal={p.name: p.nominal for p in effect.parameters})
+    residual = rng.normal(0.0, error, (600, 4))
+    mse = float(np.mean(residual ** 2))
+    return Candidate(fit, Judgement(1.0, mse, 1.0 - mse, 10.0, True, residual), 1.0 - mse, longer)
+
+
 def test_candidates_one_step_cannot_tell_apart_are_ordered_by_the_longer_prediction():
     """Tied at one step (z < 2 between them), the one that lowers the longest-horizon error by
     5 % more goes first; a clear one-step winner, a richer effect or a small longer gain do not move."""
-    from acn.models.diagnose.fitting import EffectFit
-    from acn.models.diagnose.rank import Candidate, Judgement, prefer_longer, tied_with_best
+    from acn.models.diagnose.rank import prefer_longer, tied_with_best
 
     rng = np.random.default_rng(0)
-
-    def candidate(name: str, value: float, error: float, longer: float | None) -> Candidate:
-        effect = get_effect(name)
-        values = {p.name: np.asarray(value) for p in effect.parameters}
-        fit = EffectFit(effect, "shared", values, list(values), np.full(len(values), value), np.zeros(len(values)),
-                        Model("mujoco"), cost=0.0, evaluations=0, nominal={p.name: p.nominal for p in effect.parameters})
-        residual = rng.normal(0.0, error, (600, 4))
-        mse = float(np.mean(residual ** 2))
-        return Candidate(fit, Judgement(1.0, mse, 1.0 - mse, 10.0, True, residual), 1.0 - mse, longer)
+    candidate = lambda *args: ranked_candidate(rng, *args)  # noqa: E731
 
     friction = candidate("joint_friction", 0.45, 0.500, 0.61)
     damping = candidate("joint_damping", 0.5, 0.501, 0.71)   # as good at one step, clearly better at 25 steps
@@ -434,21 +440,11 @@ def test_a_richer_effect_that_wins_only_the_one_step_gives_way_to_a_simpler_one(
     """Both PD gains beat joint damping at one step by more than the parsimony margin (as with
     twice the typical sensor noise); damping goes first only if it predicts the longest horizon
     at least as well: extra parameters that buy one-step accuracy alone fit the noise."""
-    from acn.models.diagnose.fitting import EffectFit
-    from acn.models.diagnose.rank import Candidate, Judgement, LongestHorizon, prefer_simpler
+    from acn.models.diagnose.rank import LongestHorizon, prefer_simpler
 
     rng = np.random.default_rng(1)
-
-    def candidate(name: str, error: float, longer: float) -> Candidate:
-        effect = get_effect(name)
-        values = {p.name: np.asarray(1.2) for p in effect.parameters}
-        fit = EffectFit(effect, "shared", values, list(values), np.full(len(values), 1.2), np.zeros(len(values)),
-                        Model("mujoco"), cost=0.0, evaluations=0, nominal={p.name: p.nominal for p in effect.parameters})
-        residual = rng.normal(0.0, error, (600, 4))
-        mse = float(np.mean(residual ** 2))
-        return Candidate(fit, Judgement(1.0, mse, 1.0 - mse, 10.0, True, residual), 1.0 - mse, longer)
-
-    gains, damping = candidate("pd_gains", 0.40, 0.35), candidate("joint_damping", 0.50, 0.47)
+    gains = ranked_candidate(rng, "pd_gains", 1.2, 0.40, 0.35)
+    damping = ranked_candidate(rng, "joint_damping", 1.2, 0.50, 0.47)
     assert damping.judgement.removed < 0.9 * gains.judgement.removed  # not close at one step
     horizon = LongestHorizon(None, Model("mujoco"), DiagnoseConfig(horizons=(1, 25)))  # both gains known: no rollout
     assert prefer_simpler([gains, damping])[0] is gains                # one step only: the richer one
