@@ -7,9 +7,10 @@ file, the HTML report and ``acn-view`` all read.
 Verdict:
 - ``effect``: a candidate (the best one whose held-out improvement is significant and whose
   magnitude is plausible: ``rank.implausible``) explains at least 70 % of the error above the
-  noise floor; with ``--auto``, or the effects added one after the other do, or they were
-  added to a model whose error is mostly noise (less than 15 % structured: a small effect under
-  sensor noise, which ``--auto`` adds only where it lowers the longest-horizon error too);
+  noise floor; with ``--auto``, or the effects added one after the other do, or the model with
+  them matches within the noise by the rule that gives ``none`` (less than 15 % of its error
+  structured; also where the error was mostly noise before: a small effect under sensor noise,
+  which ``--auto`` adds only where it lowers the longest-horizon error too);
 - ``unexplained``: otherwise, when at least 15 % of the error is structured (above the floor);
 - ``none``: the model matches within the noise: the error is zero, or less structured than
   that and no plausible candidate explains it.
@@ -89,13 +90,17 @@ def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Cand
         if share >= EFFECT_SHARE:
             return "effect", f"{explain} {share:.0%} of the error above the noise floor", \
                 tuple(a.name for a in added)
-        if structured < STRUCTURED_SHARE:  # a small effect under sensor noise: what is left is noise
+        after = added[-1].judgement.mse_after
+        left = 1.0 - floor_mse / after if after > 0 else 0.0
+        if min(structured, left) < STRUCTURED_SHARE:  # what is left is noise, by the rule that gives "none"
             longer = longest_removed(before, added[-1].after)
             gain = f" (the {max(before.channel_error)}-step open-loop error falls by {longer:.0%})" if longer and longer > 0 else ""
+            why = (f"the one-step error is mostly sensor noise (only {max(structured, 0):.0%} of it is predictable "
+                   f"from the state and actions)" if structured < STRUCTURED_SHARE else
+                   f"only {max(left, 0):.0%} of the one-step error left is predictable from the state and actions, "
+                   f"against {structured:.0%} before")
             return "effect", (f"{explain} {share:.0%} of the error above the noise floor{gain}, and what is "
-                              f"left matches within the noise: the one-step error is mostly sensor noise (only "
-                              f"{max(structured, 0):.0%} of it is predictable from the state and actions)"), \
-                tuple(a.name for a in added)
+                              f"left matches within the noise: {why}"), tuple(a.name for a in added)
     plausible = [c for c in ranking if c.judgement.significant and not doubt(c)]
     top = plausible[0] if plausible else None
     if top is not None and top.judgement.explained(floor_mse) >= EFFECT_SHARE:
