@@ -61,6 +61,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/view.py
 	$(BIN)/python benchmarks/ppo.py
 	$(BIN)/python benchmarks/diagnose.py
+	$(BIN)/python benchmarks/odometry.py
 	$(BIN)/python benchmarks/scale.py
 
 clean:

@@ -11,6 +11,9 @@ line per case and ``name=value`` totals:
 - ``verdict_right``: "none" on nominal logs, "unexplained" outside the catalogue, "effect" else.
 
 With ``--other``, the ``OTHER`` cases instead: values and seeds the rules were not made on.
+With ``--no-mocap``, the logs lack the trunk's position and linear velocity (no motion capture:
+an IMU and encoders only), which the diagnosis estimates by leg odometry
+(``acn.datasets.odometry``); ``--no-contacts`` leaves out the foot contact flags too.
 
 With ``--pairs``, logs with TWO hidden effects instead (``--auto``), one line each and:
 
@@ -38,6 +41,7 @@ from acn.datasets.importer import ImportConfig, import_log  # noqa: E402
 from acn.datasets.measurements import load_measurements  # noqa: E402
 from acn.models.diagnose import DiagnoseConfig, diagnose  # noqa: E402
 from acn.toolkit.effects import Model  # noqa: E402
+from acn.toolkit.state import GROUPS  # noqa: E402
 
 OFFSETS = np.array([0.05, -0.08, 0.1, -0.04, 0.06, -0.12, 0.03, 0.09, -0.07, -0.1, 0.04, 0.08])
 
@@ -131,11 +135,17 @@ PAIRS = {
 }
 
 
+def dropped(args) -> tuple[str, ...]:
+    """Channels the logs leave out (``--no-mocap``, ``--no-contacts``)."""
+    out = tuple(GROUPS["base_pos"] + GROUPS["base_linvel"]) if args.no_mocap else ()
+    return out + (tuple(GROUPS["contact"]) if args.no_contacts else ())
+
+
 def pairs(args, root: Path) -> None:
     named, within = [0, 0], [0, 0]
     for i, (name, (over, truth)) in enumerate(PAIRS.items()):
         spec = LogSpec(seconds=args.seconds, episodes=args.episodes, seed=300 + i, noise=args.noise,
-                       **{"controller": "sines", **over})
+                       drop=dropped(args), **{"controller": "sines", **over})
         write_log(root / f"p{i}.csv", spec)
         path, _ = import_log(root / f"p{i}.csv", root / f"p{i}", ImportConfig(50, 60.0, 1.5, 33.5))
         t = time.perf_counter()
@@ -167,6 +177,8 @@ def main() -> None:
     ap.add_argument("--cases", default=None, help="comma-separated names (default: every case of the set)")
     ap.add_argument("--other", action="store_true", help="the OTHER set: values and seeds the rules never saw")
     ap.add_argument("--pairs", action="store_true", help="logs with two hidden effects instead (PAIRS)")
+    ap.add_argument("--no-mocap", action="store_true", help="logs without the trunk's position and linear velocity")
+    ap.add_argument("--no-contacts", action="store_true", help="logs without foot contact flags")
     args = ap.parse_args()
     root = Path(tempfile.mkdtemp())
     if args.pairs:
@@ -177,7 +189,7 @@ def main() -> None:
         over, want, effect, key, true = cases[name]
         i = list(cases).index(name)  # a case's log is the same whichever cases run with it
         spec = LogSpec(seconds=args.seconds, episodes=args.episodes, seed=seed + i, noise=args.noise,
-                       **{"controller": "sines", **over})
+                       drop=dropped(args), **{"controller": "sines", **over})
         write_log(root / f"{i}.csv", spec)
         path, _ = import_log(root / f"{i}.csv", root / f"d{i}", ImportConfig(50, 60.0, 1.5, 33.5))
         t = time.perf_counter()

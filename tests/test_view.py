@@ -350,7 +350,9 @@ def test_an_imported_log_lacking_channels_is_compared_on_what_it_has(tmp_path):
     assert "Not measured, not compared: imu_acc (all 3)" in doc and "joint_vel (all 12)" in doc
 
 
-def test_a_log_without_trunk_pose_cannot_be_predicted_one_line(tmp_path, capsys):
+def test_a_log_without_trunk_orientation_cannot_be_predicted_one_line(tmp_path, capsys):
+    """Without the trunk's position leg odometry estimates it (``test_odometry``); without its
+    orientation nothing can: one line."""
     from robot_log import LogSpec, write_log
 
     from acn.cli import import_main
@@ -360,7 +362,7 @@ def test_a_log_without_trunk_pose_cannot_be_predicted_one_line(tmp_path, capsys)
     assert import_main([str(tmp_path / "log.csv"), "--out", str(tmp_path / "log"), "--control-hz", "50", "--kp", "60",
                         "--kd", "1.5", "--torque-limit", "33.5"]) == 0
     capsys.readouterr()
-    assert "needs the full pose" in _view_error(capsys, str(tmp_path / "log"), "--model", "mujoco")
+    assert "needs the trunk's orientation" in _view_error(capsys, str(tmp_path / "log"), "--model", "mujoco")
 
 
 def test_bad_model_or_diagnosis_is_one_line_and_exit_2(small_dataset, tmp_path, capsys):

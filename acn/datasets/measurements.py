@@ -119,20 +119,28 @@ def load_measurements(path: str | Path, side: str = "source") -> Measurements:
                         missing=missing)
 
 
-def fill_derived(m: Measurements) -> tuple[Measurements, list[str]]:
+def fill_derived(m: Measurements, backend: str | None = None) -> tuple[Measurements, list[str]]:
     """Measurements whose missing VELOCITY channels are derived from positions (central
-    differences along each episode, one-sided at its ends, angles wrapped), so that a simulator
-    can start from them. Returns the filled copy and the names of the derived channels.
-    Missing positions cannot be derived: a ``UserError`` names them.
+    differences along each episode, one-sided at its ends, angles wrapped), and whose missing
+    trunk position (a log without motion capture) is estimated by leg odometry
+    (``acn.datasets.odometry``: height and, if missing too, linear velocity from the stance
+    feet), so that a simulator can start from them. Returns the filled copy and the names of the
+    derived channels (never compared with a prediction). Missing joint angles or trunk
+    orientation cannot be derived: a ``UserError`` names them. ``backend``: the simulator that
+    will start from the result (odometry puts the feet as deep into its ground as they sink
+    standing; None: a rigid ground).
     """
     from acn.toolkit.rotations import rpy_rate_to_body, rpy_to_matrices
     from acn.toolkit.state import wrap_angle
 
-    absent = [n for g in ("base_pos", "base_rpy", "joint_pos") for n in GROUPS[g] if n in m.missing]
+    absent = [n for g in ("base_rpy", "joint_pos") for n in GROUPS[g] if n in m.missing]
     if absent:
-        raise UserError(f"re-simulating needs the full pose; the measurements lack {', '.join(absent)}")
-    derived = [n for g in ("base_linvel", "base_angvel", "joint_vel") for n in GROUPS[g] if n in m.missing]
-    if not derived:
+        raise UserError(f"re-simulating needs the trunk's orientation and the joint angles; the measurements "
+                        f"lack {', '.join(absent)}")
+    no_position = any(n in m.missing for n in GROUPS["base_pos"])
+    derived = [n for g in ("base_linvel", "base_angvel", "joint_vel") for n in GROUPS[g]
+               if n in m.missing and not (no_position and g == "base_linvel")]  # odometry's, below
+    if not derived and not no_position:
         return m, []
     dt = m.control.control_dt
     n = len(m)
@@ -160,6 +168,12 @@ def fill_derived(m: Measurements) -> tuple[Measurements, list[str]]:
                 c = SLICES[g].start + k
                 state[:, c] = now[g][:, k]
                 next_state[:, c] = np.where(follows, np.roll(now[g][:, k], -1), nxt[g][:, k])
+    if no_position:
+        from acn.datasets.odometry import fill_trunk, standing_sink
+
+        sink = standing_sink(backend) if backend else 0.0
+        state, next_state, estimated = fill_trunk(state, next_state, linked, dt, m.missing, sink)
+        derived = derived + estimated
     out = Measurements(state, m.action, next_state, m.effort, m.episode, m.frame, m.control, m.info,
                        m.description, [c for c in m.missing if c not in derived])
     return out, derived

@@ -1,8 +1,9 @@
 """The diagnosis view: measurements against a model (``acn-view MEASURED --model MODEL.json``).
 
 For every shown episode, from the measurements (``load_measurements``; the source side of a
-paired dataset; velocities a log lacks are derived from positions by ``fill_derived`` so the
-simulator can start, and are then not compared):
+paired dataset; velocities a log lacks are derived from positions, and a trunk position and
+velocity it lacks by leg odometry, by ``fill_derived`` so the simulator can start, and are then
+not compared):
 
 - **the model's prediction** (trajectory ``model``): teacher-forced one step, i.e. the model set
   to each measured state s_t (with the actions before t, for latency), the measured action
@@ -182,7 +183,8 @@ def model_markdown(name: str, model: Model, measurements: str, episode: int, sta
     if problem.data.missing:
         notes.append(f"Not measured, not compared: {_missing_text(problem.data.missing)}.")
     if problem.derived:
-        notes.append(f"Derived from positions to start the simulation, not compared: {_missing_text(problem.derived)}.")
+        notes.append("Derived to start the simulation (velocities from positions; a trunk position the log lacks by "
+                     f"leg odometry), not compared: {_missing_text(problem.derived)}.")
     if p.skipped:
         notes.append(f"{p.skipped} transitions not predicted: their measured state is incomplete.")
     return "\n".join(lines + ([""] + notes if notes else []))

@@ -123,7 +123,7 @@ class Problem:
 def prepare(data: Measurements, model: Model, cfg: DiagnoseConfig) -> Problem:
     """Check the measurements, derive missing velocities, choose channels, scales and the split."""
     cfg.validate()
-    data, derived = fill_derived(data)
+    data, derived = fill_derived(data, model.backend)
     finite = np.isfinite(data.state[:, _dynamic()]).all(1) & np.isfinite(data.next_state[:, _dynamic()]).all(1)
     if finite.sum() < 16:
         raise UserError(f"{data.description}: fewer than 16 complete transitions to compare")

@@ -1,0 +1,250 @@
+"""Leg odometry: the trunk's position and velocity from the joints, for logs without motion capture.
+
+A real robot rarely measures where its trunk is. An IMU gives the trunk's orientation and
+angular velocity and the encoders give the joint angles and speeds; the trunk's position and
+linear velocity need motion capture. A simulator must start from a full state, so they are
+estimated from the rest, on the assumption that the robot stands on flat ground (the plane
+z = 0) on the points of its collision geometry that touch it, and that those points do not
+slip:
+
+- the robot is posed with the trunk origin at 0 (orientation ``base_rpy``, joint angles) and
+  the lowest point of every collision geom is found (sphere, box, cylinder, capsule exactly;
+  other shapes by their bounding box);
+- the points that touch: the feet the log flags as touching the ground, else every point
+  within ``STANCE_BAND`` of the lowest one (a trotting robot's stance feet; a fallen robot's
+  trunk corner or thigh);
+- height: ``base_pos_z`` = minus their mean height, lowered by how deep the feet of the model
+  that starts from the estimate sink into its ground (``standing_sink``: a soft contact carries
+  the robot's weight a millimetre or two deep; starting it with the feet just touching, its
+  contacts would push too little and the trunk would drop: a structured one-step error);
+- velocity, per sample: each touching point is at rest, so the trunk's world velocity is minus
+  the mean velocity those points would have with the trunk origin at rest (joint speeds and
+  the trunk's angular velocity, from ``mj_comVel``);
+- velocity, along each run of consecutive samples (``smooth_velocity``): those per-sample
+  estimates fused with the accelerometer (``imu_acc``, the mean specific force over each control
+  step, which gives the velocity's change from one sample to the next) by a robust
+  fixed-interval smoother; feet slip and drag as they lift off, and the accelerometer bridges
+  those samples and flight. Without an accelerometer, a robust smoother of the legs' estimates;
+- ``base_pos_x``, ``base_pos_y``: the world-frame velocity integrated along each episode from 0
+  (on flat ground where the robot stands carries no dynamics).
+
+Measured (``benchmarks/odometry.py``, standing rows, median / 90th percentile): on acn-collect
+trot, height 2.5 / 4.5 mm (MuJoCo's soft contacts) and 0.0 / 0.1 mm (PyBullet), velocity 1.6-1.9 /
+2.9-3.0 cm/s (spread 28-38 cm/s); on the logs of ``tests/robot_log.py``, whose random
+controllers scrape the feet along the ground, with sensor noise, height 2-3 / 5-7 mm, velocity
+6-7 / 10-11 cm/s (spread 36-61 cm/s). Estimated channels start the simulator and are never
+compared with a prediction.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import mujoco
+import numpy as np
+
+from acn.toolkit.robot import GRAVITY
+from acn.toolkit.rotations import rpy_to_matrices, rpy_to_quat
+from acn.toolkit.state import FOOT_NAMES, GROUPS, SLICES
+
+ACCELEROMETER_NOISE = 0.2  # m/s^2, std of one accelerometer reading (mean over a control step)
+LEG_NOISE = 0.1            # m/s, the legs' velocity error the smoother starts from (then estimated)
+LEG_NOISE_FLOOR = 0.01     # m/s, the least it is estimated to be (a robot at rest gives exactly 0)
+STANCE_BAND = 0.01  # m: without contact flags, points this close to the lowest one touch the ground
+SPHERE, CAPSULE, CYLINDER, BOX = (int(t) for t in (mujoco.mjtGeom.mjGEOM_SPHERE, mujoco.mjtGeom.mjGEOM_CAPSULE,
+                                                   mujoco.mjtGeom.mjGEOM_CYLINDER, mujoco.mjtGeom.mjGEOM_BOX))
+
+
+class Odometry:
+    """Contact-point odometry on the nominal A1 (one private ``MjData``; not thread-safe)."""
+
+    def __init__(self) -> None:
+        from acn.toolkit.backends import SimConfig
+        from acn.toolkit.backends.mujoco_backend import build_spec
+        from acn.toolkit.robot import TRUNK_LINK, URDF_JOINT
+        from acn.toolkit.state import JOINT_NAMES
+
+        self.model = m = build_spec(SimConfig()).compile()
+        self.data = mujoco.MjData(m)
+        self.geoms = np.array([g for g in range(m.ngeom) if m.geom_bodyid[g] > 0
+                               and (m.geom_contype[g] or m.geom_conaffinity[g])])  # robot collision geoms
+        foot_of = {mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, f"{f}_foot"): i for i, f in enumerate(FOOT_NAMES)}
+        self._is_foot = np.array([g in foot_of for g in self.geoms])
+        self._foot_index = np.array([foot_of.get(g, 0) for g in self.geoms])   # the flag read for each geom
+        self._qadr = np.array([m.jnt_qposadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, URDF_JOINT[j])]
+                               for j in JOINT_NAMES])
+        self._vadr = np.array([m.jnt_dofadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, URDF_JOINT[j])]
+                               for j in JOINT_NAMES])
+        self._trunk = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, TRUNK_LINK)
+        g = self.geoms
+        self._kind = m.geom_type[g][:, None]
+        self._size = m.geom_size[g]
+        box = self._kind == BOX                               # a box exactly, other shapes by their bounding box
+        self._box_centre = np.where(box, 0.0, m.geom_aabb[g, :3])
+        self._box_half = np.where(box, m.geom_size[g], m.geom_aabb[g, 3:])
+
+    def lowest_points(self, centre: np.ndarray, rot: np.ndarray) -> np.ndarray:
+        """(..., G, 3) world offsets, from the trunk origin, of each collision geom's lowest
+        point, given the geoms' centres (..., G, 3) and orientations (..., G, 3, 3) with the
+        trunk origin at 0."""
+        kind, size = self._kind, self._size
+        down = -rot[..., 2, :]                                # world -z in each geom's frame
+        axis = np.sign(down[..., 2:3]) * size[:, 1:2] * [0.0, 0.0, 1.0]   # the lower end of a capsule or cylinder
+        radial = down * [1.0, 1.0, 0.0]
+        radial /= np.maximum(np.linalg.norm(radial, axis=-1, keepdims=True), 1e-9)
+        r = size[:, 0:1]
+        local = np.where(kind == SPHERE, r * down,
+                         np.where(kind == CAPSULE, axis + r * down,
+                                  np.where(kind == CYLINDER, axis + r * radial,
+                                           self._box_centre + np.sign(down) * self._box_half)))
+        return centre + np.einsum("...ij,...j->...i", rot, local)
+
+    def estimate(self, states: np.ndarray, sink: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """(height (N,), m; trunk-frame linear velocity (N, 3), m/s) of states (N, 43) whose
+        ``base_rpy``, ``joint_pos``, ``joint_vel`` and ``base_angvel`` are finite; contact flags
+        are used where present (module docstring). ``sink``: how deep the feet of the model that
+        will start from these states sink into its ground, standing on four (``standing_sink``),
+        m; on fewer points each carries more and sinks deeper in proportion."""
+        m, d = self.model, self.data
+        n, geoms = len(states), self.geoms
+        x, y, z, w = rpy_to_quat(states[:, SLICES["base_rpy"]].T)
+        qpos = np.tile(m.qpos0, (n, 1))
+        qpos[:, 0:3] = 0.0
+        qpos[:, 3:7] = np.stack([w, x, y, z], axis=1)
+        qpos[:, self._qadr] = states[:, SLICES["joint_pos"]]
+        qvel = np.zeros((n, m.nv))
+        qvel[:, 3:6] = states[:, SLICES["base_angvel"]]   # free joint: angular velocity in the trunk frame
+        qvel[:, self._vadr] = states[:, SLICES["joint_vel"]]
+        centre, rot = np.empty((n, len(geoms), 3)), np.empty((n, len(geoms), 9))
+        cvel, com, trunk = np.empty((n, m.nbody, 6)), np.empty((n, 3)), np.empty((n, 9))
+        bodies = m.geom_bodyid[geoms]
+        for i in range(n):  # with the trunk origin at rest: every body's velocity from the joints and gyro
+            d.qpos[:], d.qvel[:] = qpos[i], qvel[i]
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            mujoco.mj_comVel(m, d)
+            centre[i], rot[i], cvel[i] = d.geom_xpos[geoms], d.geom_xmat[geoms], d.cvel
+            com[i], trunk[i] = d.subtree_com[self._trunk], d.xmat[self._trunk]
+        points = self.lowest_points(centre, rot.reshape(n, -1, 3, 3))                  # (N, G, 3)
+        low = points[..., 2]
+        weight = np.clip(1.0 - (low - low.min(axis=1, keepdims=True)) / STANCE_BAND, 0.0, 1.0)
+        contact = states[:, SLICES["contact"]]
+        if not np.isnan(contact).all():
+            flags = np.nan_to_num(contact) > 0.5
+            flagged = self._is_foot & flags[:, self._foot_index]                       # (N, G)
+            weight = np.where(flags.any(axis=1, keepdims=True), flagged.astype(float), weight)
+        # cvel: (angular, linear) velocity at the robot's centre of mass, world axes
+        spin, linear = cvel[:, bodies, :3], cvel[:, bodies, 3:]
+        moving = linear + np.cross(spin, points - com[:, None])                          # (N, G, 3) world
+        total = weight.sum(axis=1)
+        height = -np.sum(weight * low, axis=1) / total - sink * len(FOOT_NAMES) / np.maximum(total, 1.0)
+        world = -np.sum(weight[..., None] * moving, axis=1) / total[:, None]
+        return height, np.einsum("nji,nj->ni", trunk.reshape(n, 3, 3), world)
+
+
+def smooth_velocity(legs: np.ndarray, change: np.ndarray | None, dt: float) -> np.ndarray:
+    """(T, 3) world-frame trunk velocities of one run of consecutive samples, m/s, from the legs'
+    per-sample estimates ``legs`` (T, 3) and, where the accelerometer is logged, the measured
+    change from sample k - 1 to k, ``change`` (T, 3; row 0 unused): per axis, the v minimising
+
+        sum_k (v_k - v_(k-1) - change_k)^2 / q  +  sum_k w_k (legs_k - v_k)^2 / r
+
+    (a tridiagonal system: the fixed-interval Kalman smoother of a random walk driven by the
+    accelerometer). q = (dt ACCELEROMETER_NOISE)^2; without an accelerometer the walk is driven
+    by the trunk's unmeasured acceleration, and q comes from the spread of the legs' own
+    changes. A slipping foot gives a leg estimate far from the rest, so w_k are Huber weights of
+    the residual (1.5 robust standard deviations) and r its robust variance, refitted four times."""
+    from scipy.linalg import solve_banded
+
+    n = len(legs)
+    if n < 3:
+        return legs.copy()
+    out = np.empty_like(legs)
+    for axis in range(3):
+        y = legs[:, axis]
+        if change is None:
+            u = np.zeros(n)
+            q = (1.4826 * np.median(np.abs(np.diff(y) - np.median(np.diff(y))))) ** 2 + 1e-12
+        else:
+            u = np.nan_to_num(change[:, axis])
+            q = (dt * ACCELEROMETER_NOISE) ** 2
+        w, r = np.ones(n), LEG_NOISE ** 2
+        for _ in range(4):
+            bands = np.zeros((3, n))
+            bands[0, 1:] = bands[2, :-1] = -1.0 / q
+            bands[1] = w / r + np.r_[1.0, np.full(n - 2, 2.0), 1.0] / q
+            rhs = w * y / r + (np.r_[0.0, u[1:]] - np.r_[u[1:], 0.0]) / q
+            v = solve_banded((1, 1), bands, rhs)
+            e = y - v
+            sigma = max(1.4826 * np.median(np.abs(e)), LEG_NOISE_FLOOR)
+            w, r = np.minimum(1.0, 1.5 * sigma / np.maximum(np.abs(e), 1e-12)), sigma ** 2
+        out[:, axis] = v
+    return out
+
+
+def standing_sink(backend: str) -> float:
+    """How deep the nominal A1's feet sink into the ground of ``backend`` standing still on four
+    feet, m (soft contacts: MuJoCo 1.3 mm, PyBullet 0.0 mm): 1 s of holding the stance."""
+    return _standing_sink(backend)
+
+
+@functools.cache
+def _standing_sink(backend: str) -> float:
+    from acn.toolkit.backends import SimConfig, make_backend
+    from acn.toolkit.backends.base import default_state
+    from acn.toolkit.kinematics import FOOT_RADIUS, RobotKinematics
+    from acn.toolkit.robot import STANCE
+
+    config = SimConfig()
+    with make_backend(backend, config) as sim:
+        sim.reset(default_state())
+        for _ in range(int(round(1.0 / config.control_dt))):
+            sim.step(STANCE)
+        state = sim.get_state()
+    feet = RobotKinematics().poses(state[None]).foot[0, :, 2] - FOOT_RADIUS
+    return float(max(-feet.mean(), 0.0))
+
+
+def fill_trunk(state: np.ndarray, next_state: np.ndarray, linked: np.ndarray, dt: float,
+               missing: list[str], sink: float = 0.0) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Copies of ``state`` / ``next_state`` (N, 43; row t + 1 follows row t where ``linked[t + 1]``,
+    and then starts from row t's next state) with the missing ``base_pos`` and ``base_linvel``
+    channels estimated (module docstring), and the names of the channels filled. The joint
+    speeds and angular velocities must be finite; ``sink`` as in ``Odometry.estimate``."""
+    odometry = Odometry()
+    state, next_state = state.copy(), next_state.copy()
+    velocity = [n for n in GROUPS["base_linvel"] if n in missing]
+    z = SLICES["base_pos"].start + 2
+    axes = [i for i, n in enumerate(GROUPS["base_linvel"]) if n in velocity]
+    cols, acc = [SLICES["base_linvel"].start + i for i in axes], SLICES["imu_acc"]
+    gravity = np.array([0.0, 0.0, -GRAVITY])
+    has_acc = not np.isnan(state[:, acc]).all()
+    if velocity or "base_pos_z" in missing:
+        (h_now, v_now), (h_next, v_next) = odometry.estimate(state, sink), odometry.estimate(next_state, sink)
+        if "base_pos_z" in missing:
+            state[:, z], next_state[:, z] = h_now, h_next
+        if velocity:
+            starts = np.flatnonzero(~linked)
+            for a, b in zip(starts, np.r_[starts[1:], len(state)] - 1):   # one run of consecutive rows
+                samples = np.vstack([state[a:b + 1], next_state[b:b + 1]])
+                rot = rpy_to_matrices(samples[:, SLICES["base_rpy"]])
+                legs = np.einsum("nij,nj->ni", rot, np.vstack([v_now[a:b + 1], v_next[b:b + 1]]))
+                change = dt * (np.einsum("nij,nj->ni", rot, samples[:, acc]) + gravity) if has_acc else None
+                body = np.einsum("nji,nj->ni", rot, smooth_velocity(legs, change, dt))
+                state[a:b + 1, cols], next_state[a:b + 1, cols] = body[:-1, axes], body[1:, axes]
+    planar = [n for n in ("base_pos_x", "base_pos_y") if n in missing]
+    if planar:
+        def world_velocity(s):
+            return np.einsum("nij,nj->ni", rpy_to_matrices(s[:, SLICES["base_rpy"]]), s[:, SLICES["base_linvel"]])
+
+        step = 0.5 * dt * (world_velocity(state) + world_velocity(next_state))   # row t -> its next state
+        where = np.zeros((len(state), 3))
+        for t in range(1, len(state)):
+            if linked[t]:
+                where[t] = where[t - 1] + step[t - 1]
+        for n in planar:
+            k = "xy".index(n[-1])
+            state[:, SLICES["base_pos"].start + k] = where[:, k]
+            next_state[:, SLICES["base_pos"].start + k] = where[:, k] + step[:, k]
+    filled = set(velocity) | set(planar) | ({"base_pos_z"} & set(missing))
+    return state, next_state, [n for n in GROUPS["base_pos"] + GROUPS["base_linvel"] if n in filled]
