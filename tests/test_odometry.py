@@ -104,3 +104,22 @@ def test_a_log_without_motion_capture_still_names_the_latency(no_mocap_log):
     d = diagnose(load_measurements(no_mocap_log["blind"]), Model.parse("mujoco"), FAST, add=["actuator_latency"])
     assert d.ranking[0].name == "actuator_latency" and d.verdict == "effect", d.reason
     assert close(d.added[0].fit.values["seconds"], 0.015, rel=0.15)
+
+
+def test_the_smoother_bridges_slipping_feet_with_the_accelerometer():
+    """Per-sample leg estimates with noise and a foot that drags for 5 samples: fused with the
+    accelerometer's changes, the outliers are gone; without an accelerometer, a robust smoother
+    of the legs alone still halves the error."""
+    from acn.datasets.odometry import smooth_velocity
+
+    rng = np.random.default_rng(0)
+    dt, t = 0.02, np.arange(250) * 0.02
+    true = np.stack([0.4 * np.sin(2 * t), 0.2 * np.cos(3 * t), 0.05 * np.sin(7 * t)], axis=1)   # m/s
+    legs = true + rng.normal(0, 0.05, true.shape)
+    legs[100:105, 0] += 0.6                                                                       # a dragging foot
+    change = np.vstack([np.zeros((1, 3)), np.diff(true, axis=0)]) + rng.normal(0, dt * 0.2, true.shape)
+    raw = np.abs(legs - true).mean()
+    fused = np.abs(smooth_velocity(legs, change, dt) - true)
+    assert fused.mean() < 0.3 * raw and fused[100:105, 0].max() < 0.05, (raw, fused.mean(), fused[100:105, 0].max())
+    alone = np.abs(smooth_velocity(legs, None, dt) - true).mean()
+    assert alone < 0.7 * raw, (raw, alone)

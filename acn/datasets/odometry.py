@@ -151,8 +151,8 @@ def smooth_velocity(legs: np.ndarray, change: np.ndarray | None, dt: float) -> n
 
     (a tridiagonal system: the fixed-interval Kalman smoother of a random walk driven by the
     accelerometer). q = (dt ACCELEROMETER_NOISE)^2; without an accelerometer the walk is driven
-    by the trunk's unmeasured acceleration, and q comes from the spread of the legs' own
-    changes. A slipping foot gives a leg estimate far from the rest, so w_k are Huber weights of
+    by the trunk's unmeasured acceleration, and q comes from the legs' own changes d (variance
+    q + 2 r, lag-one covariance -r, clipped at 3 robust standard deviations). A slipping foot gives a leg estimate far from the rest, so w_k are Huber weights of
     the residual (1.5 robust standard deviations) and r its robust variance, refitted four times."""
     from scipy.linalg import solve_banded
 
@@ -162,9 +162,11 @@ def smooth_velocity(legs: np.ndarray, change: np.ndarray | None, dt: float) -> n
     out = np.empty_like(legs)
     for axis in range(3):
         y = legs[:, axis]
-        if change is None:
-            u = np.zeros(n)
-            q = (1.4826 * np.median(np.abs(np.diff(y) - np.median(np.diff(y))))) ** 2 + 1e-12
+        if change is None:  # d = diff(legs): var(d) = q + 2 r, lag-one covariance -r
+            u, d = np.zeros(n), np.diff(y)
+            scale = 1.4826 * np.median(np.abs(d - np.median(d))) + 1e-12
+            d = np.clip(d - np.median(d), -3 * scale, 3 * scale)
+            q = max(np.mean(d * d) + 2 * np.mean(d[1:] * d[:-1]), 1e-4 * scale ** 2)
         else:
             u = np.nan_to_num(change[:, axis])
             q = (dt * ACCELEROMETER_NOISE) ** 2
