@@ -503,6 +503,18 @@ def import_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _estimated(missing: list[str]) -> str:
+    """How ``fill_derived`` estimates the missing dynamic channels, in words ("" if none is missing)."""
+    from acn.toolkit.state import GROUPS
+
+    lacks = {g for g, names in GROUPS.items() if set(names) & set(missing)}
+    odometry = "base_pos" in lacks
+    how = {"joint_vel": "joint_vel from the joint angles", "base_angvel": "base_angvel from the orientation",
+           "base_pos": "base_pos by leg odometry",
+           "base_linvel": f"base_linvel {'by leg odometry' if odometry else 'from the positions'}"}
+    return ", ".join(text for g, text in how.items() if g in lacks)
+
+
 def import_main(argv: list[str] | None = None) -> int:
     args = import_parser().parse_args(argv)
 
@@ -520,6 +532,8 @@ def import_main(argv: list[str] | None = None) -> int:
               f"{r.dropped_short} one-row segment(s)")
         if r.missing:
             print(f"not in the log (stored as NaN, not compared): {', '.join(r.missing)}")
+            if _estimated(r.missing):
+                print(f"a diagnosis starts its model from estimates of them: {_estimated(r.missing)}")
         for f in r.findings:
             print(f"check ({f.check}): {f.message}")
         if r.findings:

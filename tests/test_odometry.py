@@ -123,3 +123,13 @@ def test_the_smoother_bridges_slipping_feet_with_the_accelerometer():
     assert fused.mean() < 0.3 * raw and fused[100:105, 0].max() < 0.05, (raw, fused.mean(), fused[100:105, 0].max())
     alone = np.abs(smooth_velocity(legs, None, dt) - true).mean()
     assert alone < 0.7 * raw, (raw, alone)
+
+
+def test_acn_import_says_how_the_missing_trunk_will_be_estimated(tmp_path, capsys):
+    from acn.cli import import_main
+
+    write_log(tmp_path / "log.csv", LogSpec(seconds=0.5, episodes=1, seed=2, drop=NO_MOCAP))
+    assert import_main([str(tmp_path / "log.csv"), "--out", str(tmp_path / "log"), "--control-hz", "50", "--kp", "60",
+                        "--kd", "1.5", "--torque-limit", "33.5"]) == 0
+    out = capsys.readouterr().out
+    assert "estimates of them: base_pos by leg odometry, base_linvel by leg odometry" in out, out
