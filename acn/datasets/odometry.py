@@ -29,7 +29,8 @@ slip:
   (on flat ground where the robot stands carries no dynamics).
 
 Measured (``benchmarks/odometry.py``, standing rows, median / 90th percentile): on acn-collect
-trot, height 2.5 / 4.5 mm (MuJoCo's soft contacts) and 0.0 / 0.1 mm (PyBullet), velocity 1.6-1.9 /
+trot, height 2.5 / 4.5 mm (estimated on a rigid ground: MuJoCo's feet sink that deep, what
+``standing_sink`` puts back) and 0.0 / 0.1 mm (PyBullet), velocity 1.6-1.9 /
 2.9-3.0 cm/s (spread 28-38 cm/s); on the logs of ``tests/robot_log.py``, whose random
 controllers scrape the feet along the ground, with sensor noise, height 2-3 / 5-7 mm, velocity
 6-7 / 10-11 cm/s (spread 36-61 cm/s). Estimated channels start the simulator and are never
