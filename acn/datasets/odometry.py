@@ -223,7 +223,10 @@ def fill_trunk(state: np.ndarray, next_state: np.ndarray, linked: np.ndarray, dt
     gravity = np.array([0.0, 0.0, -GRAVITY])
     has_acc = not np.isnan(state[:, acc]).all()
     if velocity or "base_pos_z" in missing:
-        (h_now, v_now), (h_next, v_next) = odometry.estimate(state, sink), odometry.estimate(next_state, sink)
+        h_now, v_now = odometry.estimate(state, sink)
+        ends = np.flatnonzero(~np.r_[linked[1:], False])     # rows whose next state no row starts from
+        h_next, v_next = np.r_[h_now[1:], 0.0], np.vstack([v_now[1:], np.zeros((1, 3))])
+        h_next[ends], v_next[ends] = odometry.estimate(next_state[ends], sink)
         if "base_pos_z" in missing:
             state[:, z], next_state[:, z] = h_now, h_next
         if velocity:
