@@ -98,6 +98,8 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
     floor = m.geom("floor").id
     feet = [m.body(f"{f}_toe").id if mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"{f}_toe") >= 0
             else m.body(f"{f}_lower").id for f in FOOT_NAMES]
+    foot_of_body = np.full(m.nbody, -1)  # body id -> foot index (-1: not a foot)
+    foot_of_body[feet] = np.arange(len(feet))
     offset = np.zeros(12) if s.encoder_offset is None else np.asarray(s.encoder_offset, float)
     sub = s.physics_hz // s.control_hz
     rng = np.random.default_rng(s.seed)
@@ -132,14 +134,15 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
                 cmd = queue.pop(0)
                 q, qd = d.qpos[qadr] + offset, d.qvel[dadr]
                 err = cmd - q
-                err = np.sign(err) * np.maximum(np.abs(err) - s.deadband / 2, 0.0)
+                if s.deadband:
+                    err = np.sign(err) * np.maximum(np.abs(err) - s.deadband / 2, 0.0)
                 tau = np.clip(s.gains[0] * s.kp * err - s.gains[1] * s.kd * qd, -s.torque_limit, s.torque_limit)
                 d.ctrl[:] = s.strength * tau
                 mujoco.mj_step(m, d)
-                for c in d.contact[: d.ncon]:
-                    for i, b in enumerate(feet):
-                        if floor in (c.geom1, c.geom2) and b in (m.geom_bodyid[c.geom1], m.geom_bodyid[c.geom2]):
-                            touching[i] = 1.0
+                pairs = d.contact.geom[: d.ncon]  # (ncon, 2) geom ids; a foot touches where it meets the floor
+                on_floor = (pairs == floor).any(axis=1)
+                foot = foot_of_body[m.geom_bodyid[pairs[on_floor]]]
+                touching[foot[foot >= 0]] = 1.0
     out = {k: np.asarray(v, dtype=float) for k, v in rows.items()}
     if s.noise:
         noise_rng = np.random.default_rng(s.seed + 1000)

@@ -64,7 +64,7 @@ class Resimulator:
             if (c.physics_dt, c.substeps, c.action_mode) != (base.physics_dt, base.substeps, base.action_mode):
                 raise ValueError("all models of one Resimulator share physics_dt, substeps and action mode")
         self.actuation = [Actuation.from_config(c) for c in self.configs]
-        self.threads = threads or max(1, min(os.cpu_count() or 1, 8))
+        self.threads = threads or max(1, min(len(os.sched_getaffinity(0)), 8))
         self._models: list | None = None   # MuJoCo models, compiled on first use
         self._sims: dict[int, object] = {}  # PyBullet simulators, built on first use
 
