@@ -42,12 +42,14 @@ def close(fitted, true, rel: float = 0.2) -> bool:
 
 
 OFFSETS = [0.05, -0.08, 0.1, -0.04, 0.06, -0.12, 0.03, 0.09, -0.07, -0.1, 0.04, 0.08]
-CASES = {  # effect -> (hidden params, policy that excites it)
+# effect -> (hidden params, policy that excites it). Two effects are left to other tests, for time:
+# actuator latency is ranked first over the whole catalogue and fitted on a noisy log of another
+# controller, on PyBullet data and on a log without motion capture (test_odometry); motor strength
+# is ranked first and fitted where both PD gains are scaled alike, and added by acn-diagnose --add.
+CASES = {
     "joint_damping": ({"value": 0.4}, "excite"),
     "joint_friction": ({"value": 0.3}, "excite"),
     "armature": ({"value": 0.015}, "excite"),
-    "actuator_latency": ({"seconds": 0.012}, "excite"),
-    "motor_strength": ({"scale": 0.8}, "excite"),
     "torque_limit": ({"value": 18.0}, "excite"),
     "pd_gains": ({"kp_scale": 0.85, "kd_scale": 0.55}, "excite"),  # equal scales would be motor_strength
     "payload": ({"mass": 2.0, "com_x": 0.04, "com_y": -0.02, "com_z": 0.03}, "excite"),
@@ -223,6 +225,8 @@ def test_noisy_log_from_another_controller_finds_the_latency(noisy_logs):
     d = diagnose(load_measurements(noisy_logs["latency"]), Model.parse("mujoco"), FAST, add=["actuator_latency"])
     assert d.ranking[0].name == "actuator_latency" and d.verdict == "effect", d.reason
     assert close(d.added[0].fit.values["seconds"], 0.015, rel=0.15)
+    added = d.added[0]  # what is left is the sensor noise (measured: 98 % of the rest explained)
+    assert added.judgement.explained(d.floor_mse) >= 0.8 and added.after.headline < added.before.headline
 
 
 @NOISY_LOGS
