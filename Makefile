@@ -24,7 +24,7 @@ WARM_IMPORTS := import importlib, pkgutil, acn; \
 # against pip's 3.5; where uv cannot be installed, pip does it.
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
-	if $(BIN)/pip install --quiet uv; then $(BIN)/uv pip install --quiet --python $(BIN)/python -e '.[dev,ray]'; \
+	if $(BIN)/pip install -qq uv; then $(BIN)/uv pip install --quiet --python $(BIN)/python -e '.[dev,ray]'; \
 	else $(BIN)/pip install --quiet --no-compile -e '.[dev,ray]'; fi
 	$(BIN)/python -c '$(WARM_IMPORTS)' > /dev/null
 	touch $(STAMP)
