@@ -184,6 +184,9 @@ def main() -> None:
     if args.pairs:
         return pairs(args, root)
     cases, seed = (OTHER, 700) if args.other else (CASES, 100)
+    unknown = [n for n in (args.cases.split(",") if args.cases else []) if n not in cases]
+    if unknown:
+        ap.error(f"no case {unknown[0]!r}; the cases: {', '.join(cases)}")
     tally = {"ranked_first": [0, 0], "within_15pct": [0, 0], "removed_80pct": [0, 0], "verdict_right": [0, 0]}
     for name in args.cases.split(",") if args.cases else cases:
         over, want, effect, key, true = cases[name]
