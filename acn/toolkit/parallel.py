@@ -55,6 +55,12 @@ RAY_MIN_CHUNK_STEPS = 2000
 WORKER_CACHE_SIZE = 8        # built simulators / Resimulators kept per Ray worker process
 
 
+def usable_cpus() -> int:
+    """CPUs this process may run on (a taskset or a container's CPU set; all of them where the
+    platform cannot say, as on macOS)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def import_ray():
     """The ``ray`` module, or a one-line ``UserError`` saying how to install it."""
     try:
@@ -69,7 +75,7 @@ class RayConfig:
     """Where Ray work runs."""
 
     address: str | None = None      # None: start a local instance; "auto" or "HOST:PORT": join a cluster
-    cpus: int | None = None         # local instance only: CPUs it offers (default: this machine's)
+    cpus: int | None = None         # local instance only: CPUs it offers (default: those this process may use)
     object_store_mb: int = OBJECT_STORE_MB  # local instance only
 
     def validate(self) -> None:
@@ -96,7 +102,7 @@ def ray_session(config: RayConfig | None = None) -> Iterator[Any]:
         kw["address"] = config.address
     else:
         temp = tempfile.mkdtemp(prefix="acn-ray-")  # short: Ray's socket paths must fit in 107 bytes
-        kw.update(num_cpus=config.cpus or os.cpu_count() or 1, object_store_memory=config.object_store_mb * 2**20,
+        kw.update(num_cpus=config.cpus or usable_cpus(), object_store_memory=config.object_store_mb * 2**20,
                   _temp_dir=temp)
     try:
         ray.init(**kw)

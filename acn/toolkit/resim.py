@@ -17,7 +17,6 @@ Predicted contacts are not simulated state: they come back NaN.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -51,12 +50,6 @@ def _history_window(actions: np.ndarray, previous: np.ndarray | None, need: int)
     return np.concatenate([prev[:, prev.shape[1] - need:], actions], axis=1)
 
 
-def _usable_cpus() -> int:
-    """CPUs this process may run on (a taskset or a container's CPU set; all of them where the
-    platform cannot say, as on macOS)."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-
-
 class Resimulator:
     """Re-simulates recorded states under one or several models of one backend."""
 
@@ -70,7 +63,7 @@ class Resimulator:
             if (c.physics_dt, c.substeps, c.action_mode) != (base.physics_dt, base.substeps, base.action_mode):
                 raise ValueError("all models of one Resimulator share physics_dt, substeps and action mode")
         self.actuation = [Actuation.from_config(c) for c in self.configs]
-        self.threads = threads or max(1, min(_usable_cpus(), 8))
+        self.threads = threads or max(1, min(parallel.usable_cpus(), 8))
         self._models: list | None = None   # MuJoCo models, compiled on first use
         self._sims: dict[int, object] = {}  # PyBullet simulators, built on first use
 
