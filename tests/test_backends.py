@@ -135,6 +135,24 @@ def test_bad_action_and_state_are_refused(name):
             sim.step(np.zeros(11))
         with pytest.raises(ValueError):
             sim.set_state(np.zeros(STATE_DIM - 1))
+        bad = default_state()
+        bad[SLICES["joint_vel"].start] = np.nan
+        with pytest.raises(ValueError):
+            sim.set_state(bad)
+
+
+@pytest.mark.parametrize("name", BACKENDS)
+def test_a_state_without_sensor_readings_starts_the_simulator(name):
+    """A log without contact flags or accelerometer stores them as NaN: the dynamic channels
+    still start the simulator, the step reads the sensors afresh."""
+    with make_backend(name) as sim:
+        s = random_state(0)
+        s[SLICES["contact"]] = np.nan
+        s[SLICES["imu_acc"]] = np.nan
+        sim.set_state(s)
+        np.testing.assert_allclose(sim.get_state()[:SLICES["contact"].start], s[:SLICES["contact"].start], atol=1e-6, rtol=0)
+        sim.step(s[SLICES["joint_pos"]])
+        assert np.all(np.isfinite(sim.get_state()))
 
 
 def test_unknown_simulator_and_policy():

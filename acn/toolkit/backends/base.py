@@ -34,7 +34,7 @@ import numpy as np
 from acn.toolkit.actuation import Actuation
 from acn.toolkit.robot import GRAVITY, STANCE, STANDING_HEIGHT, ModelParams
 from acn.toolkit.rotations import quat_to_matrix, quat_to_rpy, rpy_to_quat
-from acn.toolkit.state import ACTION_DIM, FOOT_NAMES, NUM_JOINTS, SLICES, STATE_DIM
+from acn.toolkit.state import ACTION_DIM, DYNAMIC_GROUPS, FOOT_NAMES, NUM_JOINTS, SLICES, STATE_DIM
 
 ActionMode = Literal["position", "torque"]
 ACTION_MODES: tuple[str, ...] = ("position", "torque")
@@ -80,6 +80,7 @@ def pd_torque(target: np.ndarray, q: np.ndarray, qd: np.ndarray, cfg: SimConfig)
 MAX_ABS_LINVEL = 50.0      # m/s
 MAX_ABS_JOINT_VEL = 500.0  # rad/s
 MAX_ABS_POSITION = 1e3     # m
+_DYNAMIC = np.r_[tuple(SLICES[g] for g in DYNAMIC_GROUPS)]  # the channels set_state writes into the simulator
 
 
 def default_state(base_xy: tuple[float, float] = (0.0, 0.0), yaw: float = 0.0) -> np.ndarray:
@@ -145,13 +146,16 @@ class Backend(ABC):
     def set_state(self, state: np.ndarray, previous_actions: np.ndarray | None = None) -> None:
         """Write the dynamic channels into the simulator; keep the sensor channels as readings.
 
+        A sensor channel may be NaN (a log without contact flags or accelerometer); it is
+        reported as given until the next ``step`` replaces it.
+
         ``previous_actions`` (n, 12), oldest first: the actions before this state, which a
         model with latency still applies early in the next step. Without them the robot is
         taken to have received the next action all along.
         """
         s = np.asarray(state, dtype=np.float64)
-        if s.shape != (STATE_DIM,) or not np.all(np.isfinite(s)):
-            raise ValueError(f"state must be a finite vector of shape ({STATE_DIM},)")
+        if s.shape != (STATE_DIM,) or not np.all(np.isfinite(s[_DYNAMIC])):
+            raise ValueError(f"state must be a vector of shape ({STATE_DIM},), finite in its dynamic channels")
         self._history = None if previous_actions is None else np.asarray(previous_actions, float).reshape(-1, ACTION_DIM)
         quat = rpy_to_quat(s[SLICES["base_rpy"]])
         rot = quat_to_matrix(quat)
