@@ -493,7 +493,8 @@ def import_parser() -> argparse.ArgumentParser:
     p.add_argument("--physics-hz", type=_positive_int, default=1000, help="physics rate a model simulates it at")
     p.add_argument("--map", type=Path, default=None, dest="map_file", metavar="MAP.json",
                    help='rename and scale columns: {"FR_hip_pos": "q0", "FR_thigh_pos": {"column": "q1_deg", '
-                   '"scale": 0.0174533, "offset": 0.0}}')
+                   '"scale": 0.0174533, "offset": 0.0}}; foot forces as contact flags: '
+                   '{"FR_contact": {"column": "force0", "threshold": 20}}')
     p.add_argument("--dt-tolerance", type=_positive_float, default=0.1,
                    help="a time step may differ from the control period by this fraction before the episode is split")
     p.add_argument("--linvel-frame", choices=("body", "world"), default="body",

@@ -12,6 +12,7 @@ import pytest
 from conftest import load
 from robot_log import LogSpec, simulate, write_log
 
+from acn.datasets.importer import resolve_columns
 from acn.datasets.measurements import fill_derived, load_measurements
 from acn.toolkit.state import GROUPS, JOINT_NAMES, STATE_NAMES
 
@@ -84,10 +85,12 @@ def test_import_errors_are_one_line(tmp_path, log_rows, acn):
     pacsv.write_csv(pa.table(log_rows), tmp_path / "log.csv")
     (tmp_path / "bad.json").write_text('{"FR_knee_pos": "q0"}')
     (tmp_path / "log.txt").write_text("x")
+    (tmp_path / "threshold.json").write_text('{"FR_hip_pos": {"column": "FR_hip_pos", "threshold": 0.1}}')
     for args, message in [
         ([str(tmp_path / "nope.csv")], "does not exist"),
         ([str(tmp_path / "log.txt")], ".csv or .parquet"),
         ([str(tmp_path / "log.csv"), "--map", str(tmp_path / "bad.json")], "not a channel"),
+        ([str(tmp_path / "log.csv"), "--map", str(tmp_path / "threshold.json")], "not a contact channel"),
         ([str(tmp_path / "log.csv"), "--control-hz", "0"], ">= 1"),
         ([str(tmp_path / "log.csv"), "--control-hz", "25"], "rate looks like 50 Hz"),  # every step is a wrong one
     ]:
@@ -96,3 +99,18 @@ def test_import_errors_are_one_line(tmp_path, log_rows, acn):
         r = acn("import", *args, "--out", str(tmp_path / "ds"), *extra, *ctl)
         assert r.returncode == 2 and message in r.stderr and len(r.stderr.strip().splitlines()) == 1, (args, r.stderr)
         assert not (tmp_path / "ds").exists()
+
+
+def test_foot_forces_become_contact_flags_through_a_threshold(log_rows):
+    """A log of foot forces (N) maps onto the 0/1 contact flags with "threshold"; a lost reading stays NaN."""
+    rng = np.random.default_rng(0)
+    flags = np.column_stack([log_rows[c] for c in GROUPS["contact"]])
+    table = {f"force{i}": flags[:, i] * rng.uniform(25, 60, len(flags)) + rng.uniform(0, 3, len(flags)) for i in range(4)}
+    table["force0"][3] = np.nan
+    mapping = {c: {"column": f"force{i}", "threshold": 10.0} for i, c in enumerate(GROUPS["contact"])}
+    cols = resolve_columns(table, mapping)
+    got = np.column_stack([cols[c] for c in GROUPS["contact"]])
+    assert np.isnan(got[3, 0]) and np.isfinite(np.delete(got, 3, axis=0)).all()
+    ok = np.isfinite(got)
+    np.testing.assert_array_equal(got[ok], flags[ok])
+    assert 0 < flags.mean() < 1  # both stance and swing are in the log

@@ -322,7 +322,7 @@ def contacts(states: np.ndarray) -> list[Finding]:
         return []
     names = tuple(n for n, _ in bad)
     return [Finding("contacts", names, f"{_names(names)} should be 0/1 flags (1: touching the ground) but reach "
-                    f"{max(v for _, v in bad):.3g}: forces? threshold them before importing")]
+                    f"{max(v for _, v in bad):.3g}: forces? map them with \"threshold\": a force between swing and stance")]
 
 
 def actions(episodes: list[Episode]) -> list[Finding]:

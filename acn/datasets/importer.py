@@ -8,9 +8,11 @@ The log has one row per control step: ``episode_index`` (optional, default 0), `
 frame instead of the body frame (``ImportConfig.linvel_frame`` / ``angvel_frame``): both are
 converted. A map file renames and scales other columns onto these names:
 
-    {"FR_hip_pos": "q0", "FR_thigh_pos": {"column": "q1_deg", "scale": 0.0174533, "offset": 0.0}}
+    {"FR_hip_pos": "q0", "FR_thigh_pos": {"column": "q1_deg", "scale": 0.0174533, "offset": 0.0},
+     "FR_contact": {"column": "foot_force_0", "threshold": 20.0}}
 
-(value = scale * column + offset). Channels the log lacks are stored as NaN and listed in the
+(value = scale * column + offset; a contact channel with a ``threshold`` becomes the 0/1 flag
+value > threshold, for a log of foot forces). Channels the log lacks are stored as NaN and listed in the
 metadata (``missing_channels``); joint positions and actions are the minimum.
 
 Transitions: s_{t+1} is the next row of the same episode. A row with a non-finite value, or a
@@ -45,7 +47,7 @@ QUAT_COLUMNS = ("base_quat_w", "base_quat_x", "base_quat_y", "base_quat_z")  # t
 INDEX_COLUMNS = ("episode_index", "timestamp")
 KNOWN_COLUMNS = (*INDEX_COLUMNS, *STATE_NAMES, *QUAT_COLUMNS, *ACTION_COLUMNS, *EFFORT_COLUMNS)
 FRAMES = ("body", "world")
-MAP_ENTRY_KEYS = ("column", "scale", "offset")
+MAP_ENTRY_KEYS = ("column", "scale", "offset", "threshold")
 
 
 @dataclass
@@ -121,7 +123,8 @@ def resolve_columns(table: dict[str, np.ndarray], mapping: dict) -> dict[str, np
         if isinstance(entry, str):
             entry = {"column": entry}
         if not isinstance(entry, dict) or "column" not in entry or any(k not in MAP_ENTRY_KEYS for k in entry):
-            raise UserError(f"map: {name!r} must be a column name or {{\"column\": ..., \"scale\": ..., \"offset\": ...}}")
+            raise UserError(f"map: {name!r} must be a column name or {{\"column\": ..., \"scale\": ..., \"offset\": ...}}"
+                            + (" (a contact channel may also take \"threshold\")" if name in GROUPS["contact"] else ""))
         column = entry["column"]
         if column not in table:
             raise UserError(f"map: the log has no numeric column {column!r} (for {name})")
@@ -129,6 +132,14 @@ def resolve_columns(table: dict[str, np.ndarray], mapping: dict) -> dict[str, np
         if not all(isinstance(x, (int, float)) and np.isfinite(x) for x in (scale, offset)):
             raise UserError(f"map: scale and offset of {name!r} must be finite numbers")
         out[name] = scale * table[column] + offset
+        if "threshold" in entry:
+            threshold = entry["threshold"]
+            if name not in GROUPS["contact"]:
+                raise UserError(f"map: \"threshold\" turns a force into a contact flag; {name!r} is not a contact channel")
+            if not isinstance(threshold, (int, float)) or not np.isfinite(threshold):
+                raise UserError(f"map: the threshold of {name!r} must be a finite number")
+            value = out[name]
+            out[name] = np.where(np.isfinite(value), (value > threshold).astype(np.float64), np.nan)
     for name in KNOWN_COLUMNS:
         if name not in out and name in table:
             out[name] = table[name]
