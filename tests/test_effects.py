@@ -123,6 +123,20 @@ def test_resimulation_reproduces_the_backend_step_by_step(backend):
     assert np.isnan(pred.state[:, 0, 36:40]).all()  # contacts are readings, not predicted
 
 
+def test_both_backends_carry_the_same_payload():
+    """The trunk's mass, centre of mass and principal inertias agree between the simulators with
+    a payload (PyBullet once added the payload twice: in the URDF and again by changeDynamics).
+    MuJoCo's URDF import fuses a small fixed link (1 g, 1e-4 kg m^2) into the trunk: the tolerance."""
+    params = ModelParams(payload_mass=2.0, payload_com=[0.03, -0.01, 0.02])
+    with make_backend("mujoco", SimConfig(params=params)) as mj, make_backend("pybullet", SimConfig(params=params)) as pb:
+        body = mj.model.body("trunk").id
+        mass, _, inertia, com = pb._client.getDynamicsInfo(pb._robot, -1)[:4]
+        assert mass == pytest.approx(4.713 + 2.0, abs=1e-9)
+        assert mass == pytest.approx(mj.model.body_mass[body], abs=2e-3)
+        np.testing.assert_allclose(com, mj.model.body_ipos[body], atol=1e-4)
+        np.testing.assert_allclose(sorted(inertia), sorted(mj.model.body_inertia[body]), atol=2e-4)
+
+
 def test_one_batch_can_hold_many_models():
     s0 = initial_state(CollectConfig(), 2)
     a = Trot()(s0, 0.0)

@@ -143,7 +143,8 @@ class PyBulletBackend(Backend):
         self._feet = np.array([links[URDF_FOOT_LINK[f]] for f in FOOT_NAMES])
         assert TRUNK_LINK == c.getBodyInfo(self._robot)[0].decode()
 
-        # Nominal physics: no body damping, the parameters of ModelParams, ground friction.
+        # Nominal physics: no body damping, the parameters of ModelParams, ground friction (the
+        # payload and the rotors are in the URDF's inertials already: urdf_with_inertials).
         c.changeDynamics(self._plane, -1, lateralFriction=1.0)
         for link in [-1, *range(len(joints))]:
             c.changeDynamics(self._robot, link, linearDamping=0.0, angularDamping=0.0)
@@ -151,9 +152,6 @@ class PyBulletBackend(Backend):
             c.changeDynamics(self._robot, int(f), lateralFriction=prm.ground_friction)
         for k, j in enumerate(self._joints):
             c.changeDynamics(self._robot, j, jointDamping=float(prm.joint_damping[k]))
-        if prm.payload_mass:
-            mass = c.getDynamicsInfo(self._robot, -1)[0]
-            c.changeDynamics(self._robot, -1, mass=mass + prm.payload_mass)
         c.setJointMotorControlArray(self._robot, self._joints, pybullet.VELOCITY_CONTROL,
                                     targetVelocities=[0.0] * 12, forces=list(prm.joint_friction))
 
