@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from acn.toolkit import frames
 from acn.toolkit.backends import BACKENDS, SimConfig, SimulationDiverged, default_state, make_backend
 from acn.toolkit.collector import CollectConfig, initial_state
 from acn.toolkit.policies import Trot, make_policy, policy_action
@@ -32,6 +33,40 @@ def test_set_state_then_get_state_is_identity(name):
             s = random_state(seed)
             sim.set_state(s)
             np.testing.assert_allclose(sim.get_state(), s, atol=1e-6, rtol=0)
+
+
+@pytest.mark.parametrize("name", BACKENDS)
+def test_the_trunk_read_in_another_frame(name):
+    """With ``base_frame_offset`` the state reads the trunk in a frame off the trunk link's (a
+    motion-capture body, a tilted IMU): the same simulator state as the formulas of
+    acn.toolkit.frames give, and set_state inverts it exactly; the physics is unchanged."""
+    from acn.toolkit.robot import ModelParams
+    from acn.toolkit.rotations import rpy_to_matrices
+
+    frame = np.array([0.03, -0.02, 0.05, 0.02, -0.04, 0.03])
+    d, r_o = frame[:3], rpy_to_matrices(frame[None, 3:])[0]
+    s = random_state(1)
+    measured = SimConfig(params=ModelParams(base_frame_offset=frame))
+    with make_backend(name) as plain, make_backend(name, measured) as framed:
+        framed.set_state(s)
+        np.testing.assert_allclose(framed.get_state(), s, atol=1e-6, rtol=0)  # set_state inverts the reading
+        plain.set_state(s)  # the trunk link at s: what does the frame read?
+        rot = rpy_to_matrices(s[None, SLICES["base_rpy"]])[0]
+        w, v = s[SLICES["base_angvel"]], s[SLICES["base_linvel"]]
+        read = s.copy()
+        read[SLICES["base_pos"]] = s[SLICES["base_pos"]] + rot @ d
+        read[SLICES["base_rpy"]] = frames.matrices_to_rpy((rot @ r_o)[None])[0]
+        read[SLICES["base_angvel"]] = r_o.T @ w
+        read[SLICES["base_linvel"]] = r_o.T @ (v + np.cross(w, d))
+        framed.set_state(read)
+        a = s[SLICES["joint_pos"]] + 0.1
+        np.testing.assert_allclose(plain.step(a), framed.step(a), atol=1e-6)  # the same physics: same torques
+        after, seen = plain.get_state(), framed.get_state()
+        np.testing.assert_allclose(seen[SLICES["joint_vel"]], after[SLICES["joint_vel"]], atol=1e-6)
+        rot = rpy_to_matrices(after[None, SLICES["base_rpy"]])[0]
+        np.testing.assert_allclose(seen[SLICES["base_pos"]], after[SLICES["base_pos"]] + rot @ d, atol=1e-6)
+        np.testing.assert_allclose(seen[SLICES["base_angvel"]], r_o.T @ after[SLICES["base_angvel"]], atol=1e-6)
+        np.testing.assert_allclose(seen[SLICES["imu_acc"]], r_o.T @ after[SLICES["imu_acc"]], atol=1e-6)
 
 
 @pytest.mark.parametrize("name", BACKENDS)

@@ -150,7 +150,7 @@ def test_a_physical_effect_the_checks_see_is_left_to_the_diagnosis():
     offsets = np.array([0.05, -0.08, 0.1, -0.04, 0.06, -0.12, 0.03, 0.09, -0.07, -0.1, 0.04, 0.08])
     found = check(_episodes(simulate(LogSpec(seconds=4.0, episodes=2, seed=9, noise=1.0, encoder_offset=offsets))),
                   1 / 50)
-    assert [f.check for f in found] == ["stance_feet"] and found[0].may_be == ("encoder_offset",), found
+    assert [f.check for f in found] == ["stance_feet"] and "encoder_offset" in found[0].may_be, found
     assert "encoder_offset" in found[0].message
     assert "fix the data first" not in findings_note(found, ("encoder_offset",))
     assert "what encoder_offset does too" in findings_note(found, ("encoder_offset",))

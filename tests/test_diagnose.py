@@ -56,6 +56,8 @@ CASES = {
     "ground_friction": ({"value": 0.4}, "trot"),
     "encoder_offset": ({"value": OFFSETS}, "excite"),
     "backlash": ({"value": 0.03}, "excite"),
+    # a motion-capture body (or PyBullet's centre of mass and principal axes) instead of the trunk frame
+    "base_frame_offset": ({"x": 0.03, "y": -0.02, "z": 0.04, "roll": 0.03, "pitch": -0.04}, "excite"),
 }
 
 

@@ -20,7 +20,7 @@ CONTRACT = {
     "joint_damping": ["value"], "joint_friction": ["value"], "armature": ["value"], "actuator_latency": ["seconds"],
     "motor_strength": ["scale"], "torque_limit": ["value"], "pd_gains": ["kp_scale", "kd_scale"],
     "payload": ["mass", "com_x", "com_y", "com_z"], "ground_friction": ["value"], "encoder_offset": ["value"],
-    "backlash": ["value"],
+    "backlash": ["value"], "base_frame_offset": ["x", "y", "z", "roll", "pitch"],
 }
 
 
@@ -96,7 +96,7 @@ def test_bad_model_files_are_one_line_errors(tmp_path, bad, message):
 def test_resimulation_reproduces_the_backend_step_by_step(backend):
     """Batch re-simulation from recorded states (with latency history) equals stepping the backend."""
     params = ModelParams(latency=0.027, encoder_offset=0.03, payload_mass=1.0, payload_com=[0.02, 0.0, 0.01],
-                         backlash=0.02, armature=0.01)
+                         backlash=0.02, armature=0.01, base_frame_offset=[0.03, -0.02, 0.05, 0.02, -0.03, 0.04])
     cfg = SimConfig(params=params)
     s0, trot = initial_state(CollectConfig(), 1), Trot()
     states, actions, nexts, efforts = [], [], [], []
@@ -187,3 +187,25 @@ def test_random_hidden_effects_are_realistic():
             size = np.abs(v - p.nominal_for(SimConfig())) if p.signed else v
             lo, hi = p.realistic
             assert np.all((size >= lo - 1e-12) & (size <= hi + 1e-12)), (e.name, p.name, v)
+
+
+def test_the_stance_feet_locate_the_measured_frame():
+    """frames.frame_from_stance: the feet on the ground put a tilted, shifted frame about where
+    it is (the first guess of base_frame_offset's fit); yaw, which flat ground cannot see, stays 0."""
+    from acn.toolkit import frames
+    from acn.toolkit.policies import make_policy
+
+    frame = np.array([0.03, -0.02, 0.04, 0.03, -0.04, 0.0])
+    policy, states = make_policy("excite"), []
+    policy.reset(np.random.default_rng(1))
+    with make_backend("mujoco", SimConfig(params=ModelParams(base_frame_offset=frame))) as sim:
+        s = sim.reset(initial_state(CollectConfig(), 1))
+        for k in range(500):
+            states.append(s)
+            sim.step(policy(s, 0.02 * k))
+            s = sim.get_state()
+    guess = frames.frame_from_stance(np.array(states))
+    # a start for the fit, not its answer: the feet sink by load, which x and y soak up a little
+    np.testing.assert_allclose(guess[:3], frame[:3], atol=0.01)           # m
+    np.testing.assert_allclose(guess[3:], frame[3:], atol=0.003)          # rad
+    assert frames.frame_from_stance(np.array(states[:10])) is None  # too few rows to say

@@ -284,8 +284,9 @@ def stance_feet(states: np.ndarray, most: int = 4000) -> list[Finding]:
                     f"the feet {basis} are {med * 100:.1f} cm above the ground by forward kinematics (10-90 %: "
                     f"{lo * 100:.1f}..{hi * 100:.1f} cm): the ground is not at z = 0, the trunk origin is not the A1's, "
                     "the joint angles have another zero or sign, or the legs another order (ours: FR, FL, RR, RL); "
-                    "or, physics, the joint encoders' zeros are off by a few degrees (effect encoder_offset)",
-                    may_be=("encoder_offset",))]
+                    "or the trunk is measured in another frame (effect base_frame_offset: a marker, PyBullet's centre "
+                    "of mass); or, physics, the joint encoders' zeros are off by a few degrees (effect encoder_offset)",
+                    may_be=("encoder_offset", "base_frame_offset"))]
 
 
 # ----- sensors and actions ---------------------------------------------------------------------

@@ -123,6 +123,7 @@ class Resimulator:
             self._compile()
         layout, sub, k = self._layout, self.configs[0].substeps, actions.shape[1]
         offset = np.stack([a.offset for a in self.actuation])[index]
+        frame = np.stack([c.params.base_frame_offset for c in self.configs])[index]
         commands = np.empty((len(states), k * sub, ACTION_DIM))
         for m in np.unique(index):  # per-physics-step commands carry each model's latency
             rows = np.flatnonzero(index == m)
@@ -135,13 +136,13 @@ class Resimulator:
         with mujoco.rollout.Rollout(nthread=self.threads) as pool:
             for lo in range(0, len(states), chunk):
                 sel = slice(lo, min(lo + chunk, len(states)))
-                phys0 = layout.to_physics(states[sel], offset[sel])
+                phys0 = layout.to_physics(states[sel], offset[sel], frame[sel])
                 models = [self._models[i] for i in index[sel]]
                 if native[sel].all():
                     phys, torque = pool.rollout(models, self._datas, phys0, commands[sel])
                 else:
                     phys, torque = self._step_by_step(pool, models, index[sel], phys0, commands[sel])
-                self._store(np.arange(len(states))[sel], phys0, phys, torque, offset[sel], k, out)
+                self._store(np.arange(len(states))[sel], phys0, phys, torque, offset[sel], frame[sel], k, out)
 
     def _step_by_step(self, pool, models: list, index: np.ndarray, phys0: np.ndarray, commands: np.ndarray):
         """One physics step per rollout call; rows whose law MuJoCo cannot express get their
@@ -163,13 +164,13 @@ class Resimulator:
             x = st[:, -1]
         return phys, torque
 
-    def _store(self, rows, phys0, phys, torque, offset: np.ndarray, k: int, out: Prediction) -> None:
+    def _store(self, rows, phys0, phys, torque, offset: np.ndarray, frame: np.ndarray, k: int, out: Prediction) -> None:
         sub = self.configs[0].substeps
         ends = phys[:, sub - 1::sub]                               # (n, K, size)
         starts = np.concatenate([phys0[:, None], ends[:, :-1]], axis=1)
         n = len(rows)
         pred = self._layout.to_states(ends.reshape(n * k, -1), starts.reshape(n * k, -1), np.repeat(offset, k, axis=0),
-                                      self.control_dt).reshape(n, k, STATE_DIM)
+                                      self.control_dt, np.repeat(frame, k, axis=0)).reshape(n, k, STATE_DIM)
         eff = torque.reshape(n, k, sub, ACTION_DIM).mean(axis=2)
         bad = ~np.isfinite(pred[..., : SLICES["contact"].start]).all(axis=(1, 2))
         bad |= np.abs(pred[:, :, SLICES["joint_vel"]]).max(axis=(1, 2), initial=0.0) > 500.0

@@ -90,6 +90,8 @@ class ModelParams:
     armature            ``joint.armature``                       child link inertia about the axis
     payload_*           trunk mass, COM and inertia combined     trunk inertial of the loaded URDF
     ground_friction     floor and foot ``geom.friction``         ``lateralFriction`` of the feet
+    base_frame_offset   the state's reading of the trunk         the same
+                        (``acn.toolkit.frames``)
     latency ... backlash  the control law (``acn.toolkit.actuation``): native actuator parameters
                         in MuJoCo where the law allows, otherwise a torque computed per physics
                         step, as in PyBullet
@@ -109,6 +111,8 @@ class ModelParams:
     kd_scale: np.ndarray = field(default_factory=lambda: np.ones(NUM_JOINTS))
     encoder_offset: np.ndarray = field(default_factory=lambda: np.zeros(NUM_JOINTS))  # rad, reading - true angle
     backlash: np.ndarray = field(default_factory=lambda: np.zeros(NUM_JOINTS))        # rad, dead band width
+    base_frame_offset: np.ndarray = field(default_factory=lambda: np.zeros(6))  # x, y, z m (trunk frame), roll,
+    # pitch, yaw rad: the frame the state's trunk channels are read in, relative to the trunk link frame
 
     def __post_init__(self) -> None:
         for name in JOINT_FIELDS:
@@ -116,6 +120,7 @@ class ModelParams:
                 continue
             setattr(self, name, _per_joint(getattr(self, name), 0.0))
         self.payload_com = np.broadcast_to(np.asarray(self.payload_com, dtype=float), (3,)).copy()
+        self.base_frame_offset = np.broadcast_to(np.asarray(self.base_frame_offset, dtype=float), (6,)).copy()
         self.payload_mass, self.ground_friction = float(self.payload_mass), float(self.ground_friction)
         self.latency = float(self.latency)
 

@@ -252,6 +252,8 @@ def fit_effect(problem: Problem, base: Model, effect: Effect, granularity: str, 
     ``refit``: names of effects in ``base`` whose parameters are fitted again together with it.
     """
     free = _together(problem, base, effect, granularity, refit)
+    if start is None and effect.guess is not None and all(t.name != effect.name for t in base.effects):
+        start = _clipped(effect, effect.guess(problem.data.state[problem.fit_rows]))
     lo, hi = free.bounds()
     n_free = len(free.names)
     objective = Objective(problem, base, free, rows, budget=8 + max_iter * (n_free + 3))
@@ -279,6 +281,13 @@ def fit_effect(problem: Problem, base: Model, effect: Effect, granularity: str, 
     x = z * scale
     return EffectFit(effect, granularity, free.split(x)[0], free.names, x, stderr, free.model(base, x),
                      cost=float(r @ r), evaluations=objective.evaluations, nominal=effect.nominal(problem.control))
+
+
+def _clipped(effect: Effect, values: Values | None) -> Values | None:
+    """A first guess kept inside the parameters' bounds."""
+    if values is None:
+        return None
+    return {p.name: float(np.clip(values[p.name], p.lower, p.upper)) for p in effect.parameters}
 
 
 def _scan_start(residual, z0: np.ndarray, free: Together, lo: np.ndarray, hi: np.ndarray):

@@ -20,7 +20,9 @@ Physical effects in ``SimConfig.params`` change this law (latency, gains, streng
 encoder offsets, dead band) the same way in both backends.
 
 Joint angles in the state are encoder READINGS (true angle + ``encoder_offset``): ``set_state``
-subtracts the offset before writing the simulator, ``get_state`` adds it back.
+subtracts the offset before writing the simulator, ``get_state`` adds it back. Likewise the
+trunk's channels are read in the frame ``base_frame_offset`` (``acn.toolkit.frames``; nominal:
+the trunk link frame itself), as a motion-capture rigid body or a tilted IMU reports them.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
+from acn.toolkit import frames
 from acn.toolkit.actuation import Actuation
 from acn.toolkit.robot import GRAVITY, STANCE, STANDING_HEIGHT, ModelParams
 from acn.toolkit.rotations import quat_to_matrix, quat_to_rpy, rpy_to_quat
@@ -103,6 +106,7 @@ class Backend(ABC):
         self.config = config or SimConfig()
         self.config.validate()
         self.actuation = Actuation.from_config(self.config)
+        self._frame = self.config.params.base_frame_offset  # where the trunk's channels are read
         self._build()
         self._history: np.ndarray | None = None  # previous actions (oldest first) for the latency
         self._linvel_world = np.zeros(3)
@@ -139,6 +143,10 @@ class Backend(ABC):
         s[SLICES["base_linvel"]] = rot.T @ v_world
         s[SLICES["base_angvel"]] = rot.T @ w_world
         s[SLICES["joint_vel"]] = qd
+        if self._frame.any():  # read in the measured frame
+            read = frames.read(self._frame, pos[None], rot[None], s[None, SLICES["base_linvel"]], s[None, SLICES["base_angvel"]])
+            for name, value in zip(("base_pos", "base_rpy", "base_linvel", "base_angvel"), read):
+                s[SLICES[name]] = value[0]
         s[SLICES["contact"]] = self._contact
         s[SLICES["imu_acc"]] = self._imu_acc
         return s
@@ -157,11 +165,15 @@ class Backend(ABC):
         if s.shape != (STATE_DIM,) or not np.all(np.isfinite(s[_DYNAMIC])):
             raise ValueError(f"state must be a vector of shape ({STATE_DIM},), finite in its dynamic channels")
         self._history = None if previous_actions is None else np.asarray(previous_actions, float).reshape(-1, ACTION_DIM)
-        quat = rpy_to_quat(s[SLICES["base_rpy"]])
+        pos, rpy, v_body, w_body = (s[SLICES[g]] for g in ("base_pos", "base_rpy", "base_linvel", "base_angvel"))
+        if self._frame.any():  # readings of the measured frame -> the trunk link
+            pos, rot, v_body, w_body = (x[0] for x in frames.unread(self._frame, pos[None], rpy[None], v_body[None], w_body[None]))
+            rpy = frames.matrices_to_rpy(rot[None])[0]
+        quat = rpy_to_quat(rpy)
         rot = quat_to_matrix(quat)
-        v_world = rot @ s[SLICES["base_linvel"]]
+        v_world = rot @ v_body
         self._write_dynamics(
-            s[SLICES["base_pos"]], quat, v_world, rot @ s[SLICES["base_angvel"]],
+            pos, quat, v_world, rot @ w_body,
             s[SLICES["joint_pos"]] - self.actuation.offset, s[SLICES["joint_vel"]],
         )
         self._linvel_world = v_world
@@ -185,6 +197,8 @@ class Backend(ABC):
         acc_world = (v_world - self._linvel_world) / self.config.control_dt
         acc_world[2] += GRAVITY
         self._imu_acc = quat_to_matrix(quat).T @ acc_world
+        if self._frame.any():
+            self._imu_acc = frames.rotation(self._frame).T @ self._imu_acc
         self._linvel_world = v_world
         self._contact = self._read_contacts()
         self._state = self._compose_state(*dyn)

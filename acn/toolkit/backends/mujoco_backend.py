@@ -23,6 +23,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from acn.toolkit import frames
 from acn.toolkit.actuation import Actuation
 from acn.toolkit.backends.base import Backend, SimConfig, SimulationDiverged
 from acn.toolkit.robot import GRAVITY, TRUNK_LINK, URDF_FOOT_LINK, URDF_JOINT, combine_point_mass, urdf_path
@@ -97,13 +98,17 @@ def build_spec(config: SimConfig) -> mujoco.MjSpec:
     return spec
 
 
+_TRUNK_GROUPS = ("base_pos", "base_rpy", "base_linvel", "base_angvel")
+
+
 class PhysicsLayout:
     """Our state vectors <-> MuJoCo full physics states, many rows at once (no MjData).
 
     A physics state is ``[time, qpos (19), qvel (18)]`` (``mjSTATE_FULLPHYSICS``): trunk
     origin position and quaternion (w, x, y, z) in the world, joint angles, trunk linear velocity
     (world frame) and angular velocity (body frame), joint velocities. Joint angles in our
-    states are encoder readings: the true angle is ``reading - offset``.
+    states are encoder readings: the true angle is ``reading - offset``; the trunk's channels
+    are read in the frame ``frame`` (``ModelParams.base_frame_offset``, ``acn.toolkit.frames``).
     """
 
     def __init__(self, model: mujoco.MjModel) -> None:
@@ -115,9 +120,16 @@ class PhysicsLayout:
         if self.size != 1 + self.nq + self.nv:
             raise RuntimeError(f"unexpected MuJoCo physics state size {self.size}")
 
-    def to_physics(self, states: np.ndarray, offset: np.ndarray) -> np.ndarray:
-        """(N, 43) states, (N, 12) or (12,) encoder offsets -> (N, size) physics states."""
+    def to_physics(self, states: np.ndarray, offset: np.ndarray, frame: np.ndarray | None = None) -> np.ndarray:
+        """(N, 43) states, (N, 12) or (12,) encoder offsets, (N, 6) measured frames (default: the
+        trunk's) -> (N, size) physics states."""
         s = np.asarray(states, dtype=np.float64)
+        moved = None if frame is None else np.flatnonzero(np.asarray(frame).any(axis=1))
+        if moved is not None and len(moved):  # readings of another frame -> the trunk link's
+            s = s.copy()
+            pos, rot, v, w = frames.unread(frame[moved], *(s[moved][:, SLICES[g]] for g in _TRUNK_GROUPS))
+            for g, value in zip(_TRUNK_GROUPS, (pos, frames.matrices_to_rpy(rot), v, w)):
+                s[moved, SLICES[g]] = value
         out = np.zeros((len(s), self.size))
         qpos, qvel = out[:, 1:1 + self.nq], out[:, 1 + self.nq:]
         quat = np.stack(rpy_to_quat(s[:, SLICES["base_rpy"]].T), axis=1)  # (N, 4) x, y, z, w
@@ -130,8 +142,10 @@ class PhysicsLayout:
         qvel[:, self.dadr] = s[:, SLICES["joint_vel"]]
         return out
 
-    def to_states(self, physics: np.ndarray, before: np.ndarray, offset: np.ndarray, control_dt: float) -> np.ndarray:
-        """(N, size) physics states at the end of a control step -> (N, 43) states.
+    def to_states(self, physics: np.ndarray, before: np.ndarray, offset: np.ndarray, control_dt: float,
+                  frame: np.ndarray | None = None) -> np.ndarray:
+        """(N, size) physics states at the end of a control step -> (N, 43) states (read in
+        ``frame`` (N, 6) where given).
 
         ``before``: the physics states one control step earlier (for the IMU, the mean specific
         force over the step). Contacts are not part of a physics state: they come back NaN.
@@ -151,6 +165,13 @@ class PhysicsLayout:
         out[:, SLICES["joint_vel"]] = qvel[:, self.dadr]
         out[:, SLICES["contact"]] = np.nan
         out[:, SLICES["imu_acc"]] = np.einsum("nji,nj->ni", rot, acc)
+        moved = None if frame is None else np.flatnonzero(np.asarray(frame).any(axis=1))
+        if moved is not None and len(moved):
+            read = frames.read(frame[moved], out[moved][:, SLICES["base_pos"]], rot[moved],
+                               out[moved][:, SLICES["base_linvel"]], out[moved][:, SLICES["base_angvel"]],
+                               out[moved][:, SLICES["imu_acc"]])
+            for g, value in zip((*_TRUNK_GROUPS, "imu_acc"), read):
+                out[moved, SLICES[g]] = value
         return out
 
 

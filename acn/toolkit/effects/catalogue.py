@@ -14,6 +14,9 @@ payload             mass kg, com_x, com_y, com_z m (trunk)     0.5 - 4 kg, COM w
 ground_friction     value (foot-ground sliding coefficient)    0.2 - 0.8
 encoder_offset      value rad (per joint)                      +-(0.02 - 0.15)
 backlash            value rad, dead band width (per joint)     0.01 - 0.05
+base_frame_offset   x, y, z m, roll, pitch, yaw rad: the frame  +-(0.005 - 0.05) m, +-(0.005 - 0.05)
+                    the trunk is measured in (trunk frame)     rad: a marker, a tilted IMU, the
+                                                               inertial frame PyBullet reports
 ==================  =========================================  ==================================
 """
 
@@ -22,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from acn.errors import UserError
+from acn.toolkit import frames
 from acn.toolkit.effects.effect import Effect, Parameter
 from acn.toolkit.robot import ModelParams
 from acn.toolkit.state import NUM_JOINTS
@@ -50,6 +54,16 @@ def _payload(params: ModelParams, values) -> None:
 
 def _ground_friction(params: ModelParams, values) -> None:
     params.ground_friction = float(values["value"])
+
+
+def _base_frame_offset(params: ModelParams, values) -> None:
+    params.base_frame_offset = np.array([*(values[k] for k in ("x", "y", "z", "roll", "pitch")), 0.0], dtype=float)
+
+
+def _base_frame_guess(states: np.ndarray):
+    """Where the stance feet put the measured frame (``acn.toolkit.frames.frame_from_stance``)."""
+    frame = frames.frame_from_stance(states)
+    return None if frame is None else dict(zip(("x", "y", "z", "roll", "pitch"), (float(v) for v in frame[:5])))
 
 
 CATALOGUE: dict[str, Effect] = {e.name: e for e in (
@@ -98,6 +112,15 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
            (Parameter("value", "rad", 0.0, 0.0, 0.3, per_joint=True, realistic=(0.01, 0.05)),),
            _setter("backlash"), mujoco="motor actuators, the dead-band law computed each physics step",
            pybullet="dead band in the control law"),
+    Effect("base_frame_offset", "the trunk's pose and velocities are measured in a frame off the trunk's "
+           "(a motion-capture body, a tilted IMU, PyBullet's centre of mass and principal axes)",
+           (Parameter("x", "m", 0.0, -0.2, 0.2, realistic=(0.005, 0.05), signed=True),
+            Parameter("y", "m", 0.0, -0.2, 0.2, realistic=(0.005, 0.05), signed=True),
+            Parameter("z", "m", 0.0, -0.2, 0.2, realistic=(0.005, 0.05), signed=True),
+            Parameter("roll", "rad", 0.0, -0.3, 0.3, realistic=(0.005, 0.05), signed=True),
+            Parameter("pitch", "rad", 0.0, -0.3, 0.3, realistic=(0.005, 0.05), signed=True)),
+           _base_frame_offset, mujoco="the state's reading of the trunk channels (acn.toolkit.frames)",
+           pybullet="the same reading", guess=_base_frame_guess),
 )}
 EFFECT_NAMES: tuple[str, ...] = tuple(CATALOGUE)
 

@@ -53,6 +53,8 @@ class Effect:
     modifier: Callable[[ModelParams, Values], None]
     mujoco: str     # where MuJoCo realises it
     pybullet: str   # where PyBullet realises it
+    guess: Callable[[np.ndarray], "Values | None"] | None = None  # a cheap first estimate from measured
+    # states (N, 43) where one exists (e.g. by kinematics); a fit starts from it
 
     @property
     def per_joint(self) -> bool:
