@@ -41,6 +41,8 @@ class LogSpec:
     deadband: float = 0.0                # rad, total width of a dead band on the PD error
     encoder_offset: np.ndarray | None = None  # (12,) rad, the PD and the log read q + offset
     spec_edit: Callable[[mujoco.MjSpec], None] | None = None
+    marker: tuple[float, ...] | None = None  # (x, y, z) m [, roll, pitch rad]: the trunk logged as a
+    # motion-capture body at that place in the trunk frame, tilted so (extrinsic XYZ)
     noise: float = 0.0                   # multiple of NOISE
     rename: dict[str, tuple[str, float]] = field(default_factory=dict)  # ours -> (column, scale)
     drop: tuple[str, ...] = ()           # channels left out of the log
@@ -89,6 +91,24 @@ def _rpy(quat_wxyz: np.ndarray) -> np.ndarray:
                      np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))])
 
 
+def _as_marker(state: np.ndarray, rot: np.ndarray, marker: np.ndarray) -> np.ndarray:
+    """The trunk channels of ``state`` as a body at ``marker`` (x, y, z [, roll, pitch]) reads them."""
+    d = marker[:3]
+    tilt = marker[3:5] if len(marker) > 3 else np.zeros(2)
+    cr, sr, cp, sp = np.cos(tilt[0]), np.sin(tilt[0]), np.cos(tilt[1]), np.sin(tilt[1])
+    r_o = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]]) @ np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    quat = np.empty(4)
+    mujoco.mju_mat2Quat(quat, (rot @ r_o).ravel())
+    v, w, acc = state[18:21], state[21:24], state[40:43]
+    out = state.copy()
+    out[0:3] = state[0:3] + rot @ d
+    out[3:6] = _rpy(quat)
+    out[18:21] = r_o.T @ (v + np.cross(w, d))
+    out[21:24] = r_o.T @ w
+    out[40:43] = r_o.T @ acc
+    return out
+
+
 def simulate(s: LogSpec) -> dict[str, np.ndarray]:
     """Rows of every episode, as our channel names -> values (plus episode_index, timestamp, actions)."""
     m = _spec(s).compile()
@@ -120,6 +140,8 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
             acc = (d.qvel[0:3] - v_prev) * s.control_hz + np.array([0, 0, G])
             state = np.concatenate([d.qpos[0:3], _rpy(d.qpos[3:7]), d.qpos[qadr] + offset, rot.T @ d.qvel[0:3],
                                     d.qvel[3:6], d.qvel[dadr], touching, rot.T @ acc])
+            if s.marker is not None:
+                state = _as_marker(state, rot, np.asarray(s.marker, float))
             a = target(k / s.control_hz)
             for name, v in zip(STATE_NAMES, state):
                 rows[name].append(v)

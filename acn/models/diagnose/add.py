@@ -169,7 +169,7 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
         step = add_effect(problem, current.model, best.name, cfg, judge_rows, residual, current, start=best.fit)
         if not significant(step) or implausible(step.fit):
             break
-        if fits_noise(longer_gain(step)):
+        if fits_noise(longer_gain(step), step.fit.effect):
             noise_fits.add(best.name)  # rank.one_step_only, found on the refitted effect: try the next one
             continue
         added.append(step)

@@ -36,7 +36,7 @@ import numpy as np
 
 from acn.models.diagnose.fitting import EffectFit, default_granularity, fit_effect, refittable
 from acn.models.diagnose.problem import DiagnoseConfig, Problem
-from acn.toolkit.effects import Model, Parameter, get_effect
+from acn.toolkit.effects import Effect, Model, Parameter, get_effect
 
 PRICE_PER_PARAMETER = 0.003  # explained share a parameter has to earn
 SIGNIFICANCE_Z = 3.0
@@ -51,6 +51,7 @@ STRUCTURED_SHARE = 0.15      # of the error that must be above the noise floor b
 PARSIMONY_Z = 2.0            # a richer candidate must beat a simpler one by this much to rank first,
 PARSIMONY_SHARE = 0.9        # and the simpler one remove less than this share of what it removes
 LONGER_MARGIN = 0.05         # of the longest-horizon error: a candidate tied at one step must remove this much more
+READING_TOLERANCE = 0.05     # of the longest-horizon error: what a reading-only effect may add to it (fits_noise)
 
 
 @dataclass
@@ -155,15 +156,23 @@ class Candidate:
         return self.fit.effect.name
 
 
-def fits_noise(longer_gain: float | None) -> bool:
+def fits_noise(longer_gain: float | None, effect: Effect | None = None) -> bool:
     """Whether an effect with this share of the longest-horizon open-loop error removed (None:
-    not checked) fits the noise in the measured start states: it does not lower that error."""
-    return longer_gain is not None and longer_gain <= 0
+    not checked) fits the noise in the measured start states: it does not lower that error.
+
+    An effect on the reading only (``Effect.reading_only``: the frame the trunk is measured in)
+    acts on a prediction through its start state and its reading; the physics in between is the
+    same, and a long prediction forgets its start. So it need not lower the longest-horizon
+    error, only not raise it by more than ``READING_TOLERANCE``; what guards it against fitting
+    noise is ``too_small`` (a frame within 3/4 of the smallest realistic offset is set aside)."""
+    if longer_gain is None:
+        return False
+    return longer_gain < -READING_TOLERANCE if effect is not None and effect.reading_only else longer_gain <= 0
 
 
 def one_step_only(c: Candidate) -> str:
     """Why ``c`` is fitting the noise in the measured start states ("" if it is not, or unchecked)."""
-    if not fits_noise(c.longer_gain):
+    if not fits_noise(c.longer_gain, c.fit.effect):
         return ""
     return (f"improves the one-step prediction only (open-loop error at the longest horizon {-c.longer_gain:+.0%}): "
             "it fits what sensor noise in the measured start states does")

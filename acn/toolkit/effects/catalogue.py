@@ -120,7 +120,7 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
             Parameter("roll", "rad", 0.0, -0.3, 0.3, realistic=(0.005, 0.05), signed=True),
             Parameter("pitch", "rad", 0.0, -0.3, 0.3, realistic=(0.005, 0.05), signed=True)),
            _base_frame_offset, mujoco="the state's reading of the trunk channels (acn.toolkit.frames)",
-           pybullet="the same reading", guess=_base_frame_guess),
+           pybullet="the same reading", guess=_base_frame_guess, reading_only=True),
 )}
 EFFECT_NAMES: tuple[str, ...] = tuple(CATALOGUE)
 

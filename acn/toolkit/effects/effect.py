@@ -55,6 +55,7 @@ class Effect:
     pybullet: str   # where PyBullet realises it
     guess: Callable[[np.ndarray], "Values | None"] | None = None  # a cheap first estimate from measured
     # states (N, 43) where one exists (e.g. by kinematics); a fit starts from it
+    reading_only: bool = False  # changes how the state is read, not the physics (acn.models.diagnose.rank)
 
     @property
     def per_joint(self) -> bool:
