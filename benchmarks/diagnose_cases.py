@@ -92,6 +92,8 @@ CASES = {
     "encoder_offset": ({"encoder_offset": OFFSETS}, "effect", "encoder_offset", "value", OFFSETS),
     "backlash": ({"deadband": 0.04}, "effect", "backlash", "value", 0.04),
     "springs (outside)": ({"spec_edit": _joints("stiffness", 3.0)}, "unexplained", None, None, None),
+    # the trunk logged as a motion-capture body 6 cm above its origin, tilted (a reading, not physics)
+    "mocap body": ({"marker": (0.02, -0.015, 0.06, 0.02, -0.03)}, "effect", "base_frame_offset", "z", 0.06),
 }
 
 

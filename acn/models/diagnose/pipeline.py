@@ -150,14 +150,24 @@ def findings_note(findings: list[checks.Finding], named: tuple[str, ...]) -> str
 def noise_fitted(floor: np.ndarray, residual: np.ndarray, ranking: list[Candidate]) -> np.ndarray:
     """The floor (C,) raised by what a candidate that improves the one step only removes per
     channel (``rank.one_step_only``): that part of the error is caused by the sensor noise in the
-    start states too, though the library regressions predict it (it depends on the true state)."""
+    start states too, though the library regressions predict it (it depends on the true state).
+
+    Only what it removes beyond the best candidate that can be the explanation (significant,
+    ``rank.doubt`` empty) counts: a dozen encoder offsets also soak up a real error of the start
+    states (a trunk measured in another frame), which is not noise."""
     fits = [c for c in ranking if one_step_only(c)]
     if not fits:
         return floor
     before = np.mean(residual ** 2, axis=0)
-    removed = max((np.clip(before - np.mean(c.judgement.residual_after ** 2, axis=0), 0.0, None) for c in fits),
-                  key=np.sum)
-    return np.minimum(before, floor + removed)
+
+    def removed(c: Candidate) -> np.ndarray:
+        return np.clip(before - np.mean(c.judgement.residual_after ** 2, axis=0), 0.0, None)
+
+    noise = max((removed(c) for c in fits), key=np.sum)
+    real = [removed(c) for c in ranking if c.judgement.significant and not doubt(c)]
+    if real:
+        noise = np.clip(noise - max(real, key=np.sum), 0.0, None)
+    return np.minimum(before, floor + noise)
 
 
 def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None, add: list[str] = (),
