@@ -11,8 +11,9 @@ body frame), the state reads
     base_pos = p + R d,   base_rpy = rpy(R R_o),   base_angvel = R_o^T w,
     base_linvel = R_o^T (v + w x d),   imu_acc = R_o^T a   (a: the trunk origin's specific force)
 
-``read`` applies this to many rows at once, ``unread`` inverts it. Rows whose frame is the trunk's
-(all six values 0) are passed through untouched, bit for bit.
+``read`` applies this to many rows at once, ``unread`` inverts it. The backends and the rollout
+layout call them only for rows whose frame is not the trunk's (all six values 0), so nominal
+states stay as they were, bit for bit.
 """
 
 from __future__ import annotations

@@ -14,9 +14,9 @@ payload             mass kg, com_x, com_y, com_z m (trunk)     0.5 - 4 kg, COM w
 ground_friction     value (foot-ground sliding coefficient)    0.2 - 0.8
 encoder_offset      value rad (per joint)                      +-(0.02 - 0.15)
 backlash            value rad, dead band width (per joint)     0.01 - 0.05
-base_frame_offset   x, y, z m, roll, pitch, yaw rad: the frame  +-(0.005 - 0.05) m, +-(0.005 - 0.05)
-                    the trunk is measured in (trunk frame)     rad: a marker, a tilted IMU, the
-                                                               inertial frame PyBullet reports
+base_frame_offset   x, y, z m, roll, pitch rad: the frame the   +-(0.005 - 0.05) m, +-(0.005 - 0.05)
+                    trunk is measured in (trunk frame; no yaw:  rad: a marker, a tilted IMU, the
+                    flat ground does not see it)               inertial frame PyBullet reports
 ==================  =========================================  ==================================
 """
 
