@@ -11,9 +11,9 @@ body frame), the state reads
     base_pos = p + R d,   base_rpy = rpy(R R_o),   base_angvel = R_o^T w,
     base_linvel = R_o^T (v + w x d),   imu_acc = R_o^T a   (a: the trunk origin's specific force)
 
-``read`` applies this to many rows at once, ``unread`` inverts it. The backends and the rollout
-layout call them only for rows whose frame is not the trunk's (all six values 0), so nominal
-states stay as they were, bit for bit.
+``read`` applies this to many rows at once, ``unread`` inverts it; ``state_in_frame`` and
+``state_in_trunk`` do the same on state vectors, for the backends and the rollout layout alike,
+and leave rows whose frame is the trunk's (all six values 0) as they were, bit for bit.
 """
 
 from __future__ import annotations
@@ -35,11 +35,6 @@ def matrices_to_rpy(rot: np.ndarray) -> np.ndarray:
 def _parts(frame: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     f = np.broadcast_to(np.asarray(frame, dtype=np.float64), (n, 6))
     return f[:, :3], rpy_to_matrices(f[:, 3:])
-
-
-def rotation(frame: np.ndarray) -> np.ndarray:
-    """R_o (3, 3) of one frame (6,): the measured axes in the trunk frame."""
-    return _parts(frame, 1)[1][0]
 
 
 def _mat_vec(m: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -65,15 +60,50 @@ def read(frame: np.ndarray, pos: np.ndarray, rot: np.ndarray, v_body: np.ndarray
     return pos_m, rpy_m, v_m, w_m, acc_m
 
 
-def unread(frame: np.ndarray, pos_m: np.ndarray, rpy_m: np.ndarray, v_m: np.ndarray, w_m: np.ndarray):
+def unread(frame: np.ndarray, pos_m: np.ndarray, rpy_m: np.ndarray, v_m: np.ndarray, w_m: np.ndarray,
+           acc_m: np.ndarray | None = None):
     """Inverse of ``read``: the frame's readings (N, 3 each) -> the trunk link's position,
-    (N, 3, 3) rotation, and body-frame linear and angular velocities."""
+    (N, 3, 3) rotation, body-frame linear and angular velocities, specific force (None stays None)."""
     n = len(pos_m)
     d, r_o = _parts(frame, n)
     rot = rpy_to_matrices(rpy_m) @ np.transpose(r_o, (0, 2, 1))
     w_body = _mat_vec(r_o, w_m)
     v_body = _mat_vec(r_o, v_m) - np.cross(w_body, d)
-    return pos_m - _mat_vec(rot, d), rot, v_body, w_body
+    acc_body = None if acc_m is None else _mat_vec(r_o, acc_m)
+    return pos_m - _mat_vec(rot, d), rot, v_body, w_body, acc_body
+
+
+_READ = ("base_pos", "base_rpy", "base_linvel", "base_angvel", "imu_acc")  # the channels a frame changes
+
+
+def _moved(states: np.ndarray, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    s = np.array(states, dtype=np.float64)  # a copy
+    f = np.broadcast_to(np.asarray(frame, dtype=np.float64), (len(s), 6))
+    rows = np.flatnonzero(f.any(axis=1))
+    return s, f[rows], rows
+
+
+def state_in_frame(states: np.ndarray, frame: np.ndarray) -> np.ndarray:
+    """(N, 43) states read in the trunk link frame -> the same states read in ``frame`` (N, 6) or (6,)."""
+    s, f, rows = _moved(states, frame)
+    if len(rows):
+        t = s[rows]
+        values = read(f, t[:, SLICES["base_pos"]], rpy_to_matrices(t[:, SLICES["base_rpy"]]),
+                      t[:, SLICES["base_linvel"]], t[:, SLICES["base_angvel"]], t[:, SLICES["imu_acc"]])
+        for g, v in zip(_READ, values):
+            s[rows, SLICES[g]] = v
+    return s
+
+
+def state_in_trunk(states: np.ndarray, frame: np.ndarray) -> np.ndarray:
+    """Inverse of ``state_in_frame``: (N, 43) states read in ``frame`` -> read in the trunk link frame."""
+    s, f, rows = _moved(states, frame)
+    if len(rows):
+        t = s[rows]
+        pos, rot, v, w, acc = unread(f, *(t[:, SLICES[g]] for g in _READ))
+        for g, value in zip(_READ, (pos, matrices_to_rpy(rot), v, w, acc)):
+            s[rows, SLICES[g]] = value
+    return s
 
 
 MIN_STANCE_ROWS = 50  # rows needed for a kinematic estimate of the frame
@@ -107,7 +137,7 @@ def frame_from_stance(states: np.ndarray, most: int = 2000, iterations: int = 3)
     frame = np.zeros(6)
     zeros = np.zeros((len(s), 3))
     for _ in range(iterations):
-        pos, rot, _, _ = unread(frame, s[:, SLICES["base_pos"]], s[:, SLICES["base_rpy"]], zeros, zeros)
+        pos, rot, *_ = unread(frame, s[:, SLICES["base_pos"]], s[:, SLICES["base_rpy"]], zeros, zeros)
         g = rot[:, 2, :]                                           # (n, 3) world up in the trunk frame
         h = pos[:, None, 2] + np.einsum("nfi,ni->nf", feet, g) - FOOT_RADIUS  # (n, 4) foot heights, m
         stance = (flags > 0.5) if marked else h == h.min(axis=1, keepdims=True)

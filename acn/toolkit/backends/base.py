@@ -143,13 +143,9 @@ class Backend(ABC):
         s[SLICES["base_linvel"]] = rot.T @ v_world
         s[SLICES["base_angvel"]] = rot.T @ w_world
         s[SLICES["joint_vel"]] = qd
-        if self._frame.any():  # read in the measured frame
-            read = frames.read(self._frame, pos[None], rot[None], s[None, SLICES["base_linvel"]], s[None, SLICES["base_angvel"]])
-            for name, value in zip(("base_pos", "base_rpy", "base_linvel", "base_angvel"), read):
-                s[SLICES[name]] = value[0]
         s[SLICES["contact"]] = self._contact
         s[SLICES["imu_acc"]] = self._imu_acc
-        return s
+        return frames.state_in_frame(s[None], self._frame)[0] if self._frame.any() else s
 
     def set_state(self, state: np.ndarray, previous_actions: np.ndarray | None = None) -> None:
         """Write the dynamic channels into the simulator; keep the sensor channels as readings.
@@ -165,20 +161,17 @@ class Backend(ABC):
         if s.shape != (STATE_DIM,) or not np.all(np.isfinite(s[_DYNAMIC])):
             raise ValueError(f"state must be a vector of shape ({STATE_DIM},), finite in its dynamic channels")
         self._history = None if previous_actions is None else np.asarray(previous_actions, float).reshape(-1, ACTION_DIM)
-        pos, rpy, v_body, w_body = (s[SLICES[g]] for g in ("base_pos", "base_rpy", "base_linvel", "base_angvel"))
-        if self._frame.any():  # readings of the measured frame -> the trunk link
-            pos, rot, v_body, w_body = (x[0] for x in frames.unread(self._frame, pos[None], rpy[None], v_body[None], w_body[None]))
-            rpy = frames.matrices_to_rpy(rot[None])[0]
-        quat = rpy_to_quat(rpy)
+        trunk = frames.state_in_trunk(s[None], self._frame)[0] if self._frame.any() else s  # in the trunk link frame
+        quat = rpy_to_quat(trunk[SLICES["base_rpy"]])
         rot = quat_to_matrix(quat)
-        v_world = rot @ v_body
+        v_world = rot @ trunk[SLICES["base_linvel"]]
         self._write_dynamics(
-            pos, quat, v_world, rot @ w_body,
+            trunk[SLICES["base_pos"]], quat, v_world, rot @ trunk[SLICES["base_angvel"]],
             s[SLICES["joint_pos"]] - self.actuation.offset, s[SLICES["joint_vel"]],
         )
         self._linvel_world = v_world
         self._contact = s[SLICES["contact"]].copy()
-        self._imu_acc = s[SLICES["imu_acc"]].copy()
+        self._imu_acc = trunk[SLICES["imu_acc"]].copy()  # kept in the trunk frame, read in _compose_state
         self._state = None
 
     def step(self, action: np.ndarray) -> np.ndarray:
@@ -197,8 +190,6 @@ class Backend(ABC):
         acc_world = (v_world - self._linvel_world) / self.config.control_dt
         acc_world[2] += GRAVITY
         self._imu_acc = quat_to_matrix(quat).T @ acc_world
-        if self._frame.any():
-            self._imu_acc = frames.rotation(self._frame).T @ self._imu_acc
         self._linvel_world = v_world
         self._contact = self._read_contacts()
         self._state = self._compose_state(*dyn)

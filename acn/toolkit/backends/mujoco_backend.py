@@ -98,9 +98,6 @@ def build_spec(config: SimConfig) -> mujoco.MjSpec:
     return spec
 
 
-_TRUNK_GROUPS = ("base_pos", "base_rpy", "base_linvel", "base_angvel")
-
-
 class PhysicsLayout:
     """Our state vectors <-> MuJoCo full physics states, many rows at once (no MjData).
 
@@ -123,13 +120,7 @@ class PhysicsLayout:
     def to_physics(self, states: np.ndarray, offset: np.ndarray, frame: np.ndarray | None = None) -> np.ndarray:
         """(N, 43) states, (N, 12) or (12,) encoder offsets, (N, 6) measured frames (default: the
         trunk's) -> (N, size) physics states."""
-        s = np.asarray(states, dtype=np.float64)
-        moved = None if frame is None else np.flatnonzero(np.asarray(frame).any(axis=1))
-        if moved is not None and len(moved):  # readings of another frame -> the trunk link's
-            s = s.copy()
-            pos, rot, v, w = frames.unread(frame[moved], *(s[moved][:, SLICES[g]] for g in _TRUNK_GROUPS))
-            for g, value in zip(_TRUNK_GROUPS, (pos, frames.matrices_to_rpy(rot), v, w)):
-                s[moved, SLICES[g]] = value
+        s = np.asarray(states, dtype=np.float64) if frame is None else frames.state_in_trunk(states, frame)
         out = np.zeros((len(s), self.size))
         qpos, qvel = out[:, 1:1 + self.nq], out[:, 1 + self.nq:]
         quat = np.stack(rpy_to_quat(s[:, SLICES["base_rpy"]].T), axis=1)  # (N, 4) x, y, z, w
@@ -165,14 +156,7 @@ class PhysicsLayout:
         out[:, SLICES["joint_vel"]] = qvel[:, self.dadr]
         out[:, SLICES["contact"]] = np.nan
         out[:, SLICES["imu_acc"]] = np.einsum("nji,nj->ni", rot, acc)
-        moved = None if frame is None else np.flatnonzero(np.asarray(frame).any(axis=1))
-        if moved is not None and len(moved):
-            read = frames.read(frame[moved], out[moved][:, SLICES["base_pos"]], rot[moved],
-                               out[moved][:, SLICES["base_linvel"]], out[moved][:, SLICES["base_angvel"]],
-                               out[moved][:, SLICES["imu_acc"]])
-            for g, value in zip((*_TRUNK_GROUPS, "imu_acc"), read):
-                out[moved, SLICES[g]] = value
-        return out
+        return out if frame is None else frames.state_in_frame(out, frame)
 
 
 class MuJoCoBackend(Backend):
