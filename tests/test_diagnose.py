@@ -55,6 +55,7 @@ CASES = {
     "pd_gains": ({"kp_scale": 0.85, "kd_scale": 0.55}, "excite"),  # equal scales would be motor_strength
     "payload": ({"mass": 2.0, "com_x": 0.04, "com_y": -0.02, "com_z": 0.03}, "excite"),
     "ground_friction": ({"value": 0.4}, "trot"),
+    "ground_softness": ({"timeconst": 0.05}, "trot"),  # the feet sink 11 mm standing (1.3 nominal)
     "encoder_offset": ({"value": OFFSETS}, "excite"),
     "backlash": ({"value": 0.03}, "excite"),
     # a motion-capture body (or PyBullet's centre of mass and principal axes) instead of the trunk frame

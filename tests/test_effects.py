@@ -20,7 +20,7 @@ CONTRACT = {
     "joint_damping": ["value"], "joint_friction": ["value"], "armature": ["value"], "actuator_latency": ["seconds"],
     "motor_strength": ["scale"], "torque_limit": ["value"], "pd_gains": ["kp_scale", "kd_scale"],
     "payload": ["mass", "com_x", "com_y", "com_z"], "ground_friction": ["value"], "encoder_offset": ["value"],
-    "backlash": ["value"], "base_frame_offset": ["x", "y", "z", "roll", "pitch"],
+    "backlash": ["value"], "base_frame_offset": ["x", "y", "z", "roll", "pitch"], "ground_softness": ["timeconst"],
 }
 
 

@@ -29,6 +29,9 @@ STANCE = np.tile(np.array([0.0, 0.8, -1.6]), 4)
 # 0.2*cos(0.8) + 0.2*cos(-0.8) + 0.02 = 0.2987 m, rounded up by 1.3 mm.
 STANDING_HEIGHT = 0.30
 GRAVITY = 9.81  # m/s^2, along -z of the world frame
+# s, MuJoCo's default contact time constant (``solref[0]``, damping ratio 1): the nominal ground.
+# Nominal PyBullet keeps its own rigid contact (``ModelParams`` table).
+GROUND_TIMECONST = 0.02
 
 
 def urdf_path() -> str:
@@ -77,10 +80,11 @@ def _per_joint(value, default: float) -> np.ndarray:
 class ModelParams:
     """The physical description beyond the URDF; both backends realise every field.
 
-    Nominal values reproduce the URDF (no joint damping, friction or rotor inertia) on rigid
-    ground of friction 1, driven exactly by the control law of ``SimConfig``. Physical effects
-    (``acn.toolkit.effects``) write into these fields; per-joint fields are (12,) arrays in
-    ``JOINT_NAMES`` order (a scalar is broadcast). Where each field lands in each simulator:
+    Nominal values reproduce the URDF (no joint damping, friction or rotor inertia) on each
+    simulator's own ground contact with friction 1, driven exactly by the control law of
+    ``SimConfig``. Physical effects (``acn.toolkit.effects``) write into these fields;
+    per-joint fields are (12,) arrays in ``JOINT_NAMES`` order (a scalar is broadcast). Where
+    each field lands in each simulator:
 
     ==================  =======================================  ===================================
     field               MuJoCo                                   PyBullet
@@ -90,6 +94,8 @@ class ModelParams:
     armature            ``joint.armature``                       child link inertia about the axis
     payload_*           trunk mass, COM and inertia combined     trunk inertial of the loaded URDF
     ground_friction     floor and foot ``geom.friction``         ``lateralFriction`` of the feet
+    ground_timeconst    floor and robot ``geom.solref`` (time    feet ``contactStiffness`` and
+                        constant, critically damped)             ``contactDamping`` (``soft_contact``)
     base_frame_offset   the state's reading of the trunk         the same
                         (``acn.toolkit.frames``)
     latency ... backlash  the control law (``acn.toolkit.actuation``): native actuator parameters
@@ -104,6 +110,7 @@ class ModelParams:
     payload_mass: float = 0.0     # kg, a point mass rigidly attached to the trunk
     payload_com: np.ndarray = field(default_factory=lambda: np.zeros(3))  # m, trunk frame (link origin)
     ground_friction: float = 1.0  # sliding friction coefficient, foot-ground
+    ground_timeconst: float = GROUND_TIMECONST  # s, the foot-ground contact's time constant (softness)
     latency: float = 0.0          # s, a command reaches the motors this late
     motor_strength: np.ndarray = field(default_factory=lambda: np.ones(NUM_JOINTS))   # produced / commanded
     torque_limit: np.ndarray | None = None  # N m per joint; None: the control settings' limit
@@ -122,6 +129,7 @@ class ModelParams:
         self.payload_com = np.broadcast_to(np.asarray(self.payload_com, dtype=float), (3,)).copy()
         self.base_frame_offset = np.broadcast_to(np.asarray(self.base_frame_offset, dtype=float), (6,)).copy()
         self.payload_mass, self.ground_friction = float(self.payload_mass), float(self.ground_friction)
+        self.ground_timeconst = float(self.ground_timeconst)
         self.latency = float(self.latency)
 
     def copy(self) -> "ModelParams":

@@ -11,7 +11,8 @@ stepped with ``mj_step`` or re-simulated in batches with ``mujoco.rollout``:
   motors (``tau = ctrl``), the torque computed by ``Actuation.torque`` every physics step.
 
 The physical parameters of ``ModelParams`` are written into the spec: joint damping,
-frictionloss and armature, the payload combined into the trunk's inertia, geom friction.
+frictionloss and armature, the payload combined into the trunk's inertia, geom friction and the contact's time constant
+(``solref``).
 One ``actuatorfrc`` sensor per joint gives the applied torque in ``mujoco.rollout``'s sensor data.
 
 Euler integration, like PyBullet's semi-implicit step, and only robot-floor contacts
@@ -61,14 +62,16 @@ def build_spec(config: SimConfig) -> mujoco.MjSpec:
     trunk.add_freejoint(name="root")
     if prm.payload_mass > 0:
         _add_payload(trunk, prm.payload_mass, prm.payload_com)
+    solref = [prm.ground_timeconst, 1.0]  # the contact's time constant, critically damped
     for geom in spec.geoms:  # robot geoms touch the floor only
         geom.contype, geom.conaffinity = 1, 0
         geom.friction[0] = prm.ground_friction
+        geom.solref = solref
     for foot in FOOT_NAMES:
         spec.body(URDF_FOOT_LINK[foot]).geoms[0].name = f"{foot}_foot"
     spec.worldbody.add_geom(
         name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1],
-        contype=0, conaffinity=1, friction=[prm.ground_friction, 0.005, 0.0001],
+        contype=0, conaffinity=1, friction=[prm.ground_friction, 0.005, 0.0001], solref=solref,
     )
     for k, jname in enumerate(JOINT_NAMES):
         joint = spec.joint(URDF_JOINT[jname])

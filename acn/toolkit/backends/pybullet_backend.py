@@ -37,7 +37,8 @@ with _quiet_stdio():
 import pybullet_data  # noqa: E402
 
 from acn.toolkit.backends.base import Backend
-from acn.toolkit.robot import GRAVITY, TRUNK_LINK, URDF_FOOT_LINK, URDF_JOINT, ModelParams, combine_point_mass, urdf_path
+from acn.toolkit.robot import (GRAVITY, GROUND_TIMECONST, TRUNK_LINK, URDF_FOOT_LINK, URDF_JOINT, ModelParams,
+                              combine_point_mass, urdf_path)
 from acn.toolkit.rotations import cross
 from acn.toolkit.state import FOOT_NAMES, JOINT_NAMES
 
@@ -101,6 +102,21 @@ def urdf_with_inertials(params: ModelParams) -> str | None:
     return ET.tostring(root, encoding="unicode")
 
 
+# m, how deep MuJoCo's contact at the nominal time constant lets the standing A1 sink (1.32 mm
+# measured; the sink grows as the time constant squared up to ~0.06 s: 11.8 mm there).
+MUJOCO_NOMINAL_SINK = 1.32e-3
+
+
+def soft_contact(timeconst: float, robot_mass: float) -> tuple[float, float]:
+    """PyBullet foot ``contactStiffness`` (N/m) and ``contactDamping`` (N s/m) for a ground of
+    MuJoCo time constant ``timeconst`` (s): the stiffness that lets the standing robot sink as
+    deep as MuJoCo's contact does (each foot carrying a quarter of the weight), critically
+    damped for a quarter of the mass. An approximation, as the armature's rotor disc is."""
+    load = robot_mass * GRAVITY / 4.0
+    stiffness = load / (MUJOCO_NOMINAL_SINK * (timeconst / GROUND_TIMECONST) ** 2)
+    return stiffness, 2.0 * np.sqrt(stiffness * robot_mass / 4.0)
+
+
 class PyBulletBackend(Backend):
     """The A1 in PyBullet.
 
@@ -150,6 +166,11 @@ class PyBulletBackend(Backend):
             c.changeDynamics(self._robot, link, linearDamping=0.0, angularDamping=0.0)
         for f in self._feet:
             c.changeDynamics(self._robot, int(f), lateralFriction=prm.ground_friction)
+        if prm.ground_timeconst != GROUND_TIMECONST:  # nominal: PyBullet's own rigid contact
+            mass = sum(c.getDynamicsInfo(self._robot, link)[0] for link in [-1, *range(len(joints))])
+            stiffness, damping = soft_contact(prm.ground_timeconst, mass)
+            for f in self._feet:
+                c.changeDynamics(self._robot, int(f), contactStiffness=stiffness, contactDamping=damping)
         for k, j in enumerate(self._joints):
             c.changeDynamics(self._robot, j, jointDamping=float(prm.joint_damping[k]))
         c.setJointMotorControlArray(self._robot, self._joints, pybullet.VELOCITY_CONTROL,

@@ -12,6 +12,8 @@ torque_limit        value N m (per joint)                      12 - 25 (below th
 pd_gains            kp_scale, kd_scale (per joint)             0.6 - 0.9, 0.5 - 0.9
 payload             mass kg, com_x, com_y, com_z m (trunk)     0.5 - 4 kg, COM within +-5 cm
 ground_friction     value (foot-ground sliding coefficient)    0.2 - 0.8
+ground_softness     timeconst s, the foot-ground contact's       0.03 - 0.1 (nominal 0.02, MuJoCo's
+                    time constant (larger: softer)             default; the feet sink 3 - 20 mm)
 encoder_offset      value rad (per joint)                      +-(0.02 - 0.15)
 backlash            value rad, dead band width (per joint)     0.01 - 0.05
 base_frame_offset   x, y, z m, roll, pitch rad: the frame the   +-(0.005 - 0.05) m, +-(0.005 - 0.05)
@@ -27,7 +29,7 @@ import numpy as np
 from acn.errors import UserError
 from acn.toolkit import frames
 from acn.toolkit.effects.effect import Effect, Parameter
-from acn.toolkit.robot import ModelParams
+from acn.toolkit.robot import GROUND_TIMECONST, ModelParams
 from acn.toolkit.state import NUM_JOINTS
 
 
@@ -54,6 +56,10 @@ def _payload(params: ModelParams, values) -> None:
 
 def _ground_friction(params: ModelParams, values) -> None:
     params.ground_friction = float(values["value"])
+
+
+def _ground_softness(params: ModelParams, values) -> None:
+    params.ground_timeconst = float(values["timeconst"])
 
 
 def _base_frame_offset(params: ModelParams, values) -> None:
@@ -104,6 +110,10 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
     Effect("ground_friction", "foot-ground sliding friction differs",
            (Parameter("value", "1", 1.0, 0.05, 2.0, realistic=(0.2, 0.8)),),
            _ground_friction, mujoco="foot and floor geom friction", pybullet="lateralFriction of the feet"),
+    Effect("ground_softness", "the ground (or the feet) is softer or stiffer: the contact's time constant",
+           (Parameter("timeconst", "s", GROUND_TIMECONST, 0.005, 0.2, realistic=(0.03, 0.1)),),
+           _ground_softness, mujoco="floor and robot geom solref (damping ratio 1)",
+           pybullet="contactStiffness / contactDamping of the feet, the sink MuJoCo gives (an approximation)"),
     Effect("encoder_offset", "joint encoders read q + value; the PD acts on the reading",
            (Parameter("value", "rad", 0.0, -0.5, 0.5, per_joint=True, realistic=(0.02, 0.15), signed=True),),
            _setter("encoder_offset"), mujoco="actuator bias (-kp offset) and the state's reading",
