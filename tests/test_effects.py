@@ -137,6 +137,29 @@ def test_both_backends_carry_the_same_payload():
         np.testing.assert_allclose(sorted(inertia), sorted(mj.model.body_inertia[body]), atol=2e-4)
 
 
+def test_soft_ground_sinks_the_robot_alike_in_both_simulators():
+    """ground_softness: MuJoCo's time constant and PyBullet's foot stiffness (``soft_contact``)
+    let the standing robot sink as deep (MuJoCo 1.3 mm at the nominal 0.02 s, as its square)."""
+    from acn.toolkit.backends.base import default_state
+    from acn.toolkit.kinematics import FOOT_RADIUS, RobotKinematics
+    from acn.toolkit.robot import STANCE
+
+    def sink(backend: str, timeconst: float) -> float:
+        with make_backend(backend, SimConfig(params=ModelParams(ground_timeconst=timeconst))) as sim:
+            sim.reset(default_state())
+            for _ in range(50):
+                sim.step(STANCE)
+            feet = RobotKinematics().poses(sim.get_state()[None]).foot[0, :, 2] - FOOT_RADIUS
+        return -float(feet.mean())
+
+    nominal = sink("mujoco", 0.02)
+    for timeconst in (0.03, 0.04):
+        mj, pb = sink("mujoco", timeconst), sink("pybullet", timeconst)
+        assert mj == pytest.approx(nominal * (timeconst / 0.02) ** 2, rel=0.1), (timeconst, mj)
+        assert pb == pytest.approx(mj, rel=0.1), (timeconst, pb, mj)
+    assert sink("pybullet", 0.02) < 2e-4  # nominal PyBullet keeps its own rigid contact
+
+
 def test_one_batch_can_hold_many_models():
     s0 = initial_state(CollectConfig(), 2)
     a = Trot()(s0, 0.0)

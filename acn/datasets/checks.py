@@ -280,13 +280,15 @@ def stance_feet(states: np.ndarray, most: int = 4000) -> list[Finding]:
     med, lo, hi = (float(v) for v in np.percentile(h, [50, 10, 90]))
     if abs(med) <= STANCE_MEDIAN and hi - lo <= STANCE_SPREAD:
         return []
+    sink = med < 0  # below the ground: soft ground lets the feet sink (1.3 mm on MuJoCo's nominal contact)
     return [Finding("stance_feet", GROUPS["base_pos"] + GROUPS["joint_pos"],
                     f"the feet {basis} are {med * 100:.1f} cm above the ground by forward kinematics (10-90 %: "
                     f"{lo * 100:.1f}..{hi * 100:.1f} cm): the ground is not at z = 0, the trunk origin is not the A1's, "
                     "the joint angles have another zero or sign, or the legs another order (ours: FR, FL, RR, RL); "
                     "or the trunk is measured in another frame (effect base_frame_offset: a marker, PyBullet's centre "
-                    "of mass); or, physics, the joint encoders' zeros are off by a few degrees (effect encoder_offset)",
-                    may_be=("encoder_offset", "base_frame_offset"))]
+                    "of mass); or, physics, the joint encoders' zeros are off by a few degrees (effect encoder_offset)"
+                    + (", or the feet sink into soft ground (effect ground_softness)" if sink else ""),
+                    may_be=("encoder_offset", "base_frame_offset") + (("ground_softness",) if sink else ()))]
 
 
 # ----- sensors and actions ---------------------------------------------------------------------

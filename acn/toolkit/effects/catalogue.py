@@ -12,8 +12,9 @@ torque_limit        value N m (per joint)                      12 - 25 (below th
 pd_gains            kp_scale, kd_scale (per joint)             0.6 - 0.9, 0.5 - 0.9
 payload             mass kg, com_x, com_y, com_z m (trunk)     0.5 - 4 kg, COM within +-5 cm
 ground_friction     value (foot-ground sliding coefficient)    0.2 - 0.8
-ground_softness     timeconst s, the foot-ground contact's       0.03 - 0.1 (nominal 0.02, MuJoCo's
-                    time constant (larger: softer)             default; the feet sink 3 - 20 mm)
+ground_softness     timeconst s, the foot-ground contact's     0.03 - 0.1 (nominal 0.02, MuJoCo's
+                    time constant (larger: softer; below two   default; the feet sink 3 - 20 mm);
+                    physics steps MuJoCo clamps it)            stiffer: PyBullet's rigid contact
 encoder_offset      value rad (per joint)                      +-(0.02 - 0.15)
 backlash            value rad, dead band width (per joint)     0.01 - 0.05
 base_frame_offset   x, y, z m, roll, pitch rad: the frame the   +-(0.005 - 0.05) m, +-(0.005 - 0.05)
@@ -111,7 +112,7 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
            (Parameter("value", "1", 1.0, 0.05, 2.0, realistic=(0.2, 0.8)),),
            _ground_friction, mujoco="foot and floor geom friction", pybullet="lateralFriction of the feet"),
     Effect("ground_softness", "the ground (or the feet) is softer or stiffer: the contact's time constant",
-           (Parameter("timeconst", "s", GROUND_TIMECONST, 0.005, 0.2, realistic=(0.03, 0.1)),),
+           (Parameter("timeconst", "s", GROUND_TIMECONST, 0.001, 0.12, realistic=(0.03, 0.1)),),
            _ground_softness, mujoco="floor and robot geom solref (damping ratio 1)",
            pybullet="contactStiffness / contactDamping of the feet, the sink MuJoCo gives (an approximation)"),
     Effect("encoder_offset", "joint encoders read q + value; the PD acts on the reading",
