@@ -232,3 +232,11 @@ def test_the_stance_feet_locate_the_measured_frame():
     np.testing.assert_allclose(guess[:3], frame[:3], atol=0.01)           # m
     np.testing.assert_allclose(guess[3:], frame[3:], atol=0.003)          # rad
     assert frames.frame_from_stance(np.array(states[:10])) is None  # too few rows to say
+    # base_frame_offset's check: the true frame brings the stance feet to the ground; the trunk
+    # frame read as if it were the measured one, or a frame off the other way, moves them away
+    check = get_effect("base_frame_offset").check
+    named = dict(zip(("x", "y", "z", "roll", "pitch"), frame[:5]))
+    assert check(np.array(states), named) == ""
+    trunk = frames.state_in_trunk(np.array(states), frame)
+    assert "further from the ground" in check(trunk, {k: -v for k, v in named.items()})
+    assert "further from the ground" in check(trunk, {**dict.fromkeys(named, 0.0), "z": 0.01})

@@ -109,6 +109,48 @@ def state_in_trunk(states: np.ndarray, frame: np.ndarray) -> np.ndarray:
 MIN_STANCE_ROWS = 50  # rows needed for a kinematic estimate of the frame
 
 
+class _Stance:
+    """Rows of measured states with a trunk pose, and the feet that carry the robot in them:
+    those the log marks as touching, or without contact flags the lowest foot of each row."""
+
+    def __init__(self, states: np.ndarray, most: int) -> None:
+        from acn.toolkit.kinematics import RobotKinematics
+
+        s = np.asarray(states, dtype=np.float64)
+        pose = np.r_[SLICES["base_pos"], SLICES["base_rpy"], SLICES["joint_pos"]]
+        rows = np.flatnonzero(np.isfinite(s[:, pose]).all(axis=1))
+        self.s = s[rows[np.linspace(0, len(rows) - 1, min(most, len(rows))).astype(int)]] if len(rows) else s[:0]
+        level = self.s.copy()
+        level[:, SLICES["base_pos"]] = 0.0
+        level[:, SLICES["base_rpy"]] = 0.0
+        self.feet = RobotKinematics().poses(level).foot if len(level) else np.zeros((0, 4, 3))  # (n, 4, 3) trunk frame
+        flags = self.s[:, SLICES["contact"]]
+        self.marked = bool(np.isfinite(flags).all() and (flags > 0.5).any())
+        self.flags = flags
+
+    def heights(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(n, 4) foot heights above the ground (m) with the trunk read in ``frame``, the (n, 4)
+        stance mask, and (n, 3) the world's up axis in the trunk frame."""
+        from acn.toolkit.kinematics import FOOT_RADIUS
+
+        zeros = np.zeros((len(self.s), 3))
+        pos, rot, *_ = unread(frame, self.s[:, SLICES["base_pos"]], self.s[:, SLICES["base_rpy"]], zeros, zeros)
+        g = rot[:, 2, :]
+        h = pos[:, None, 2] + np.einsum("nfi,ni->nf", self.feet, g) - FOOT_RADIUS
+        stance = (self.flags > 0.5) if self.marked else h == h.min(axis=1, keepdims=True)
+        return h, stance, g
+
+
+def stance_heights(states: np.ndarray, frame: np.ndarray, most: int = 2000) -> np.ndarray | None:
+    """Heights above the ground (m) of the feet carrying the robot (``frame_from_stance``) when
+    the trunk is read in ``frame``; None without enough rows with a trunk pose."""
+    st = _Stance(states, most)
+    if len(st.s) < MIN_STANCE_ROWS:
+        return None
+    h, stance, _ = st.heights(np.asarray(frame, dtype=np.float64))
+    return h[stance]
+
+
 def frame_from_stance(states: np.ndarray, most: int = 2000, iterations: int = 3) -> np.ndarray | None:
     """A first estimate of the measured frame (6,) from the feet on the ground, or None.
 
@@ -120,28 +162,13 @@ def frame_from_stance(states: np.ndarray, most: int = 2000, iterations: int = 3)
     pitch), repeated (Gauss-Newton) from the trunk poses the last estimate gives. Yaw stays 0:
     on flat ground the feet cannot see it.
     """
-    from acn.toolkit.kinematics import FOOT_RADIUS, RobotKinematics
-
-    s = np.asarray(states, dtype=np.float64)
-    pose = np.r_[SLICES["base_pos"], SLICES["base_rpy"], SLICES["joint_pos"]]
-    rows = np.flatnonzero(np.isfinite(s[:, pose]).all(axis=1))
-    if len(rows) < MIN_STANCE_ROWS:
+    st = _Stance(states, most)
+    if len(st.s) < MIN_STANCE_ROWS:
         return None
-    s = s[rows[np.linspace(0, len(rows) - 1, min(most, len(rows))).astype(int)]]
-    level = s.copy()
-    level[:, SLICES["base_pos"]] = 0.0
-    level[:, SLICES["base_rpy"]] = 0.0
-    feet = RobotKinematics().poses(level).foot                    # (n, 4, 3) trunk frame
-    flags = s[:, SLICES["contact"]]
-    marked = np.isfinite(flags).all() and (flags > 0.5).any()
     frame = np.zeros(6)
-    zeros = np.zeros((len(s), 3))
     for _ in range(iterations):
-        pos, rot, *_ = unread(frame, s[:, SLICES["base_pos"]], s[:, SLICES["base_rpy"]], zeros, zeros)
-        g = rot[:, 2, :]                                           # (n, 3) world up in the trunk frame
-        h = pos[:, None, 2] + np.einsum("nfi,ni->nf", feet, g) - FOOT_RADIUS  # (n, 4) foot heights, m
-        stance = (flags > 0.5) if marked else h == h.min(axis=1, keepdims=True)
-        f, up = feet[stance], np.broadcast_to(g[:, None], feet.shape)[stance]
+        h, stance, g = st.heights(frame)
+        f, up = st.feet[stance], np.broadcast_to(g[:, None], st.feet.shape)[stance]
         if len(f) < MIN_STANCE_ROWS:
             return None
         a = np.column_stack([up, np.cross(f, up)[:, :2]])

@@ -189,6 +189,7 @@ class EffectFit:
     cost: float              # mean squared normalised residual on the fit rows
     evaluations: int
     nominal: Values          # the values at which the effect is absent (for these control settings)
+    contradicted: str = ""   # why the measurements contradict the values without simulation (``Effect.check``)
 
 
 class _OutOfBudget(Exception):
@@ -279,8 +280,10 @@ def fit_effect(problem: Problem, base: Model, effect: Effect, granularity: str, 
                                   [lo.reshape(-1, 1) / scale[:, None], hi.reshape(-1, 1) / scale[:, None]])
     stderr = _stderr(r, jac) * scale
     x = z * scale
-    return EffectFit(effect, granularity, free.split(x)[0], free.names, x, stderr, free.model(base, x),
-                     cost=float(r @ r), evaluations=objective.evaluations, nominal=effect.nominal(problem.control))
+    values = free.split(x)[0]
+    return EffectFit(effect, granularity, values, free.names, x, stderr, free.model(base, x),
+                     cost=float(r @ r), evaluations=objective.evaluations, nominal=effect.nominal(problem.control),
+                     contradicted=effect.check(problem.data.state[problem.fit_rows], values) if effect.check else "")
 
 
 def _clipped(effect: Effect, values: Values | None) -> Values | None:
@@ -398,4 +401,6 @@ def instrumental_refit(problem: Problem, base: Model, fit: EffectFit, rows: np.n
     values = free.split(x)[0]
     stderr = np.sqrt(np.clip(np.diag(cov), 0.0, None)) * scale  # the instrumental estimate's own
     return EffectFit(fit.effect, fit.granularity, values, fit.names, x, stderr, free.model(base, x),
-                     cost=fit.cost, evaluations=fit.evaluations + objective.evaluations, nominal=fit.nominal)
+                     cost=fit.cost, evaluations=fit.evaluations + objective.evaluations, nominal=fit.nominal,
+                     contradicted=fit.effect.check(problem.data.state[problem.fit_rows], values)
+                     if fit.effect.check else "")

@@ -132,7 +132,11 @@ def implausible(fit: EffectFit) -> str:
     else (joint springs fit as damping 2.5 N m s/rad or a derivative gain x 2.8); one below 3/4
     of the smallest realistic magnitude is fitting noise or another effect's leftovers (sensor
     noise in joint readings biases the contact forces a re-simulation starts with, and encoder
-    offsets of a few mrad fit that)."""
+    offsets of a few mrad fit that). Values the measurements contradict without simulation
+    (``Effect.check``: a measured frame that lifts the stance feet off the ground) stand in for
+    something else too."""
+    if fit.contradicted:
+        return fit.contradicted
     stuck = at_bound(fit)
     if stuck:
         return f"needs {', '.join(stuck)} at the bound of its range"
