@@ -123,10 +123,10 @@ class _Stance:
         level = self.s.copy()
         level[:, SLICES["base_pos"]] = 0.0
         level[:, SLICES["base_rpy"]] = 0.0
-        self.feet = RobotKinematics().poses(level).foot if len(level) else np.zeros((0, 4, 3))  # (n, 4, 3) trunk frame
-        flags = self.s[:, SLICES["contact"]]
-        self.marked = bool(np.isfinite(flags).all() and (flags > 0.5).any())
-        self.flags = flags
+        # (n, 4, 3) the feet in the trunk frame
+        self.feet = RobotKinematics().poses(level).foot if len(level) else np.zeros((0, 4, 3))
+        self.flags = self.s[:, SLICES["contact"]]
+        self.marked = bool(np.isfinite(self.flags).all() and (self.flags > 0.5).any())
 
     def heights(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(n, 4) foot heights above the ground (m) with the trunk read in ``frame``, the (n, 4)

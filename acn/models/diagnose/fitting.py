@@ -283,7 +283,12 @@ def fit_effect(problem: Problem, base: Model, effect: Effect, granularity: str, 
     values = free.split(x)[0]
     return EffectFit(effect, granularity, values, free.names, x, stderr, free.model(base, x),
                      cost=float(r @ r), evaluations=objective.evaluations, nominal=effect.nominal(problem.control),
-                     contradicted=effect.check(problem.data.state[problem.fit_rows], values) if effect.check else "")
+                     contradicted=_contradiction(problem, effect, values))
+
+
+def _contradiction(problem: Problem, effect: Effect, values: Values) -> str:
+    """Why the measured fit rows contradict ``values`` without simulation (``Effect.check``; "" if not)."""
+    return effect.check(problem.data.state[problem.fit_rows], values) if effect.check else ""
 
 
 def _clipped(effect: Effect, values: Values | None) -> Values | None:
@@ -402,5 +407,4 @@ def instrumental_refit(problem: Problem, base: Model, fit: EffectFit, rows: np.n
     stderr = np.sqrt(np.clip(np.diag(cov), 0.0, None)) * scale  # the instrumental estimate's own
     return EffectFit(fit.effect, fit.granularity, values, fit.names, x, stderr, free.model(base, x),
                      cost=fit.cost, evaluations=fit.evaluations + objective.evaluations, nominal=fit.nominal,
-                     contradicted=fit.effect.check(problem.data.state[problem.fit_rows], values)
-                     if fit.effect.check else "")
+                     contradicted=_contradiction(problem, fit.effect, values))

@@ -11,8 +11,8 @@ stepped with ``mj_step`` or re-simulated in batches with ``mujoco.rollout``:
   motors (``tau = ctrl``), the torque computed by ``Actuation.torque`` every physics step.
 
 The physical parameters of ``ModelParams`` are written into the spec: joint damping,
-frictionloss and armature, the payload combined into the trunk's inertia, geom friction and the contact's time constant
-(``solref``).
+frictionloss and armature, the payload combined into the trunk's inertia, geom friction and
+the contact's time constant (``solref``).
 One ``actuatorfrc`` sensor per joint gives the applied torque in ``mujoco.rollout``'s sensor data.
 
 Euler integration, like PyBullet's semi-implicit step, and only robot-floor contacts
