@@ -264,19 +264,13 @@ def pose(episodes: list[Episode]) -> list[Finding]:
 
 def stance_feet(states: np.ndarray, most: int = 4000) -> list[Finding]:
     """Feet marked touching (or, without contact flags, the lowest foot) at ground height."""
-    from acn.toolkit.kinematics import FOOT_RADIUS, RobotKinematics
+    from acn.toolkit.frames import Stance
 
-    pose_cols = np.r_[SLICES["base_pos"], SLICES["base_rpy"], SLICES["joint_pos"]]
-    rows = np.flatnonzero(np.isfinite(states[:, pose_cols]).all(1))
-    if len(rows) < MIN_ROWS:
+    stance = Stance(states, most)
+    if len(stance.s) < MIN_ROWS:
         return []
-    rows = rows[np.linspace(0, len(rows) - 1, min(most, len(rows))).astype(int)]
-    height = RobotKinematics().poses(states[rows]).foot[..., 2] - FOOT_RADIUS  # (n, 4) m
-    flags = states[rows][:, SLICES["contact"]]
-    if np.isfinite(flags).all() and (flags > 0.5).any():
-        h, basis = height[flags > 0.5], "the log marks as touching the ground"
-    else:
-        h, basis = height.min(1), "lowest in each row"
+    h = stance.carrying(np.zeros(6))  # m, the trunk as logged
+    basis = "the log marks as touching the ground" if stance.marked else "lowest in each row"
     med, lo, hi = (float(v) for v in np.percentile(h, [50, 10, 90]))
     if abs(med) <= STANCE_MEDIAN and hi - lo <= STANCE_SPREAD:
         return []

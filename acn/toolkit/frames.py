@@ -109,11 +109,13 @@ def state_in_trunk(states: np.ndarray, frame: np.ndarray) -> np.ndarray:
 MIN_STANCE_ROWS = 50  # rows needed for a kinematic estimate of the frame
 
 
-class _Stance:
+class Stance:
     """Rows of measured states with a trunk pose, and the feet that carry the robot in them:
-    those the log marks as touching, or without contact flags the lowest foot of each row."""
+    those the log marks as touching, or without contact flags the lowest foot of each row (at
+    most ``most`` rows, spread evenly). The data check of the stance feet, the frame's first
+    guess and its kinematic check all read them here."""
 
-    def __init__(self, states: np.ndarray, most: int) -> None:
+    def __init__(self, states: np.ndarray, most: int = 2000) -> None:
         from acn.toolkit.kinematics import RobotKinematics
 
         s = np.asarray(states, dtype=np.float64)
@@ -140,15 +142,10 @@ class _Stance:
         stance = (self.flags > 0.5) if self.marked else h == h.min(axis=1, keepdims=True)
         return h, stance, g
 
-
-def stance_heights(states: np.ndarray, frame: np.ndarray, most: int = 2000) -> np.ndarray | None:
-    """Heights above the ground (m) of the feet carrying the robot (``frame_from_stance``) when
-    the trunk is read in ``frame``; None without enough rows with a trunk pose."""
-    st = _Stance(states, most)
-    if len(st.s) < MIN_STANCE_ROWS:
-        return None
-    h, stance, _ = st.heights(np.asarray(frame, dtype=np.float64))
-    return h[stance]
+    def carrying(self, frame: np.ndarray) -> np.ndarray:
+        """Heights above the ground (m) of the feet carrying the robot, the trunk read in ``frame``."""
+        h, stance, _ = self.heights(np.asarray(frame, dtype=np.float64))
+        return h[stance]
 
 
 def frame_from_stance(states: np.ndarray, most: int = 2000, iterations: int = 3) -> np.ndarray | None:
@@ -162,7 +159,7 @@ def frame_from_stance(states: np.ndarray, most: int = 2000, iterations: int = 3)
     pitch), repeated (Gauss-Newton) from the trunk poses the last estimate gives. Yaw stays 0:
     on flat ground the feet cannot see it.
     """
-    st = _Stance(states, most)
+    st = Stance(states, most)
     if len(st.s) < MIN_STANCE_ROWS:
         return None
     frame = np.zeros(6)

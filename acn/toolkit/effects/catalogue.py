@@ -69,12 +69,13 @@ def _base_frame_offset(params: ModelParams, values) -> None:
 
 def _base_frame_check(states: np.ndarray, values) -> str:
     """A measured frame must put the feet that carry the robot closer to the ground than the
-    trunk frame does (``acn.toolkit.frames.stance_heights``): a frame fitted to what dynamics
-    the model lacks (joint springs: z 3.8 mm, 6.2 mm rms against 3.4) moves them away."""
-    frame = np.array([*(float(values[k]) for k in ("x", "y", "z", "roll", "pitch")), 0.0])
-    before, after = frames.stance_heights(states, np.zeros(6)), frames.stance_heights(states, frame)
-    if before is None or after is None:
+    trunk frame does (``acn.toolkit.frames.Stance``): a frame fitted to what dynamics the model
+    lacks (joint springs: z 3.8 mm, 6.2 mm rms against 3.4) moves them away."""
+    stance = frames.Stance(states)
+    if len(stance.s) < frames.MIN_STANCE_ROWS:
         return ""
+    frame = np.array([*(float(values[k]) for k in ("x", "y", "z", "roll", "pitch")), 0.0])
+    before, after = stance.carrying(np.zeros(6)), stance.carrying(frame)
     rms_before, rms_after = (float(np.sqrt(np.mean(h ** 2))) for h in (before, after))
     if rms_after <= rms_before:
         return ""
