@@ -116,6 +116,29 @@ def test_two_effects_together_are_both_found(tmp_path):
     assert d.verdict == "effect" and d.final.headline < 0.2 * d.before.headline
 
 
+def test_a_candidate_whose_final_fit_is_set_aside_gives_way_to_the_runner_up(tmp_path, monkeypatch):
+    # A final fit (more rows, chosen granularity) can turn implausible where the ranking's fit was
+    # not (seen on the trot gap with a bound too high for ground_softness). The chain goes on with
+    # the runner-up, and the verdict never names the effect set aside. The real rule is replaced
+    # by one that refuses the true effect, so the path runs on every machine.
+    from acn.models.diagnose import add
+
+    real = add.final_doubt
+    monkeypatch.setattr(add, "final_doubt", lambda step: "refused for the test" if step.name == "joint_damping"
+                        else real(step))
+    data = measured(tmp_path, {"joint_damping": {"value": 0.4}})
+    cfg = replace(FAST, finest="shared", candidates=("joint_damping", "joint_friction", "armature"),
+                  auto_alternatives=0)
+    d = diagnose(data, Model.parse("mujoco"), cfg, automatic=True)
+    assert d.ranking[0].name == "joint_damping", [(c.name, c.score) for c in d.ranking]
+    assert d.set_aside == {"joint_damping": "refused for the test"}
+    assert "joint_damping" not in [a.name for a in d.added]
+    assert d.added, "the runner-up was not tried"  # damping's effect is partly friction-like
+    assert not d.reason.startswith("joint_damping"), d.reason
+    assert "joint_damping set aside: refused for the test" in d.reason, d.reason
+    assert "set aside by --auto: joint_damping refused for the test" in terminal(d)
+
+
 def test_a_richer_effect_gives_way_to_a_simpler_one_beside_the_others(tmp_path):
     """Strength 0.85 and friction 0.2 hidden; both PD gains added first (as greedy adding can on
     noisy logs), then friction. Judged again beside friction, the gains give way to the simpler

@@ -8,8 +8,9 @@ improvement is larger than the noise (significant, ``rank.judge``, or at the lon
 ``rank.uneven``) and removes at least 5 % of the error: after the right effects, a noisy log
 still lets armature or damping fit a few per cent of the contact bias that noise in joint
 readings leaves. An effect whose final fit lowers the one-step error but not the open-loop
-error at the longest horizon is not added (``rank.one_step_only``); the next candidate is
-tried. Then ``revisit`` judges each added effect again beside the others, and ``other_starts``
+error at the longest horizon is not added (``rank.one_step_only``), nor one whose final fit
+(on more rows, at the granularity chosen) is no longer significant or turns implausible
+(``rank.implausible``): it is set aside with the reason, and the next candidate is tried. Then ``revisit`` judges each added effect again beside the others, and ``other_starts``
 runs the same greedy chain from the next-best first candidates, keeping one that predicts
 clearly better.
 """
@@ -137,28 +138,45 @@ class Chain:
 
 
 def auto(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows: np.ndarray, base_residual: np.ndarray,
-         floor_mse: float, ranking: list[Candidate], progress=None) -> tuple[list[Added], list[Chain]]:
+         floor_mse: float, ranking: list[Candidate], progress=None) -> tuple[list[Added], list[Chain], dict[str, str]]:
     """``greedy`` then ``revisit``, from the best candidate and (``other_starts``) from the next
-    ``cfg.auto_alternatives`` ones; the added effects of the chain kept, and every chain tried.
+    ``cfg.auto_alternatives`` ones; the added effects of the chain kept, every chain tried, and the
+    candidates the first chain set aside on their final fit (name -> why).
 
     The other starts are tried whatever the chain leaves: once one effect has stood in for two,
     the one-step error can sit at the noise floor (nothing left to rank) while the open-loop
     error is still three times what the right pair leaves (payload + damping below)."""
-    chain = revisit(problem, first, cfg, judge_rows, base_residual,
-                    greedy(problem, first, cfg, judge_rows, base_residual, floor_mse, ranking, progress), progress)
-    return other_starts(problem, first, cfg, judge_rows, base_residual, floor_mse, ranking, chain, progress)
+    steps, set_aside = greedy(problem, first, cfg, judge_rows, base_residual, floor_mse, ranking, progress)
+    chain = revisit(problem, first, cfg, judge_rows, base_residual, steps, progress)
+    return (*other_starts(problem, first, cfg, judge_rows, base_residual, floor_mse, ranking, chain, progress),
+            set_aside)
+
+
+def final_doubt(step: Added) -> str:
+    """Why an effect's final fit is not added ("" if it is): no longer significant, or implausible."""
+    f = step.fit
+    values = ", ".join(f"{n}={x:.4g}" for n, x in zip(f.names, f.x)) if len(f.x) <= 4 else f"{len(f.x)} values"
+    if not significant(step):
+        return f"its final fit ({values}) improves held-out predictions by only {step.judgement.z:.1f} standard errors"
+    why = implausible(f)
+    return f"its final fit ({values}) {why}" if why else ""
 
 
 def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows: np.ndarray,
-           base_residual: np.ndarray, floor_mse: float, ranking: list[Candidate], progress=None) -> list[Added]:
+           base_residual: np.ndarray, floor_mse: float, ranking: list[Candidate],
+           progress=None) -> tuple[list[Added], dict[str, str]]:
     """Greedy rank -> add while the best candidate removes more than the noise: it explains at
     least ``AUTO_MIN_EXPLAINED`` of what is left above the floor, and removes ``AUTO_MIN_REMOVED``
-    of the one-step error or ``AUTO_MIN_LONGER`` of the longest-horizon open-loop error."""
+    of the one-step error or ``AUTO_MIN_LONGER`` of the longest-horizon open-loop error.
+
+    A candidate whose final fit is not added (``final_doubt``) is set aside and the next one is
+    tried by the same rules. Returns the added effects and those set aside (name -> why)."""
     added: list[Added] = []
     noise_fits: set[str] = set()  # added, then found to improve the one step only
+    set_aside: dict[str, str] = {}
     current, residual = first, base_residual
     while len(added) < cfg.auto_max:
-        best = next((c for c in ranking if c.name not in {a.name for a in added} | noise_fits
+        best = next((c for c in ranking if c.name not in {a.name for a in added} | noise_fits | set(set_aside)
                      and c.judgement.significant and not doubt(c)), None)
         if best is None or best.judgement.explained(floor_mse) < AUTO_MIN_EXPLAINED:
             break
@@ -167,8 +185,12 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
         if progress:
             progress(f"adding {best.name}", None)
         step = add_effect(problem, current.model, best.name, cfg, judge_rows, residual, current, start=best.fit)
-        if not significant(step) or implausible(step.fit):
-            break
+        why = final_doubt(step)
+        if why:
+            set_aside[best.name] = why
+            if progress:
+                progress(f"{best.name} set aside: {why}", None)
+            continue
         if fits_noise(longer_gain(step), step.fit.effect):
             noise_fits.add(best.name)  # rank.one_step_only, found on the refitted effect: try the next one
             continue
@@ -176,7 +198,7 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
         current, residual = step.after, step.judgement.residual_after
         if len(added) < cfg.auto_max:
             ranking = rank(problem, current.model, cfg, judge_rows, residual, progress)
-    return added
+    return added, set_aside
 
 
 def improvement(new: list[Added], old: list[Added]) -> dict:
@@ -215,7 +237,7 @@ def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge
     for c in [c for c in pool if c.name != chain[0].name][:cfg.auto_alternatives]:
         if progress:
             progress(f"trying {c.name} first", None)
-        steps = greedy(problem, first, shortlist, judge_rows, base_residual, floor_mse, [c], progress)
+        steps, _ = greedy(problem, first, shortlist, judge_rows, base_residual, floor_mse, [c], progress)
         steps = revisit(problem, first, cfg, judge_rows, base_residual, steps, progress)
         other = Chain(steps, c.name)
         tried.append(other)

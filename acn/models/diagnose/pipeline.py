@@ -63,6 +63,7 @@ class Diagnosis:
     closed_loop: dict | None = None  # robot vs model in closed loop (``transfer.closed_loop_models``)
     data_checks: list[checks.Finding] = field(default_factory=list)  # the measurements' own consistency
     chains: list[Chain] = field(default_factory=list)  # --auto: every chain of added effects tried (``add.auto``)
+    set_aside: dict[str, str] = field(default_factory=dict)  # --auto: not added on their final fit: name -> why
 
     @property
     def floor_mse(self) -> float:
@@ -78,8 +79,10 @@ class Diagnosis:
 
 
 def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Candidate], added: list[Added],
-            automatic: bool) -> tuple[str, str, tuple[str, ...]]:
-    """(verdict, reason in words, the effects it names); see module docstring."""
+            automatic: bool, set_aside: dict[str, str] | None = None) -> tuple[str, str, tuple[str, ...]]:
+    """(verdict, reason in words, the effects it names); see module docstring. ``set_aside``:
+    candidates ``--auto`` did not add on their final fit (name -> why); never named."""
+    set_aside = set_aside or {}
     if before.headline < EXACT:
         return "none", f"the model reproduces the measurements (headline error {before.headline:.2g})", ()
     structured = 1.0 - floor_mse / mse if mse > 0 else 0.0
@@ -101,11 +104,13 @@ def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Cand
                    f"against {structured:.0%} before")
             return "effect", (f"{explain} {share:.0%} of the error above the noise floor{gain}, and what is "
                               f"left matches within the noise: {why}"), tuple(a.name for a in added)
-    plausible = [c for c in ranking if c.judgement.significant and not doubt(c)]
+    plausible = [c for c in ranking if c.judgement.significant and not doubt(c) and c.name not in set_aside]
     top = plausible[0] if plausible else None
+    aside = "".join(f"; {name} set aside: {why}" for name, why in set_aside.items())
     if top is not None and top.judgement.explained(floor_mse) >= EFFECT_SHARE:
-        skipped = [c.name for c in ranking[: ranking.index(top)]]
+        skipped = [c.name for c in ranking[: ranking.index(top)] if c.name not in set_aside]
         also = f"; ranked above it but set aside: {', '.join(skipped)}" if skipped else ""
+        also += aside
         return "effect", (f"{top.name} explains {top.judgement.explained(floor_mse):.0%} of the error above the noise "
                           f"floor ({evidence(top)}){also}"), (top.name,)
     best = ranking[0] if ranking else None
@@ -113,11 +118,11 @@ def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Cand
         why = ("no candidate improves held-out predictions significantly" if best is None
                or not best.judgement.significant else
                f"the best plausible candidate, {top.name}, explains only {top.judgement.explained(floor_mse):.0%} of it"
-               if top is not None else f"the best candidate, {best.name}, {doubt(best)}")
-        return "unexplained", f"{structured:.0%} of the error is structured (above the noise floor); {why}", ()
+               if top is not None else f"the best candidate, {best.name}, {doubt(best) or set_aside.get(best.name, '')}")
+        return "unexplained", f"{structured:.0%} of the error is structured (above the noise floor); {why}{aside}", ()
     extra = f"; the best candidate, {best.name}, removes {best.judgement.removed:.1%} of it" if best else ""
-    if best is not None and implausible(best.fit):
-        extra += f" but {implausible(best.fit)}"
+    if best is not None and (implausible(best.fit) or best.name in set_aside):
+        extra += f" but {implausible(best.fit) or set_aside[best.name]}"
     noise = sorted((c for c in ranking if one_step_only(c)), key=lambda c: -c.judgement.removed)  # the most convincing
     if noise:
         extra += f"; {noise[0].name} {one_step_only(noise[0])}"
@@ -209,16 +214,17 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
         added.append(step)
         current, current_residual = step.after, step.judgement.residual_after
     chains: list[Chain] = []
+    set_aside: dict[str, str] = {}
     if automatic:
         again = ranking if not added else rank(problem, current.model, cfg, judge_rows, current_residual, say)
-        steps, chains = auto(problem, current, cfg, judge_rows, current_residual, floor_mse, again, say)
+        steps, chains, set_aside = auto(problem, current, cfg, judge_rows, current_residual, floor_mse, again, say)
         added += steps
     t3 = time.perf_counter()
-    v, reason, named = verdict(before, mse, floor_mse, ranking, added, automatic)
+    v, reason, named = verdict(before, mse, floor_mse, ranking, added, automatic, set_aside)
     reason += findings_note(findings, named)
     return Diagnosis(data.description, problem, before, judge_rows, floor, mse, where, ranking, added, v, reason,
                      seconds={"compare": t1 - t0, "rank": t2 - t1, "add": t3 - t2, "total": t3 - t0},
-                     data_checks=findings, chains=chains)
+                     data_checks=findings, chains=chains, set_aside=set_aside)
 
 
 def explain_corrector(data: Measurements, model: Model, corrector_dir, cfg: DiagnoseConfig | None = None,

@@ -124,6 +124,7 @@ def to_json(d: Diagnosis) -> dict:
         "ranking": [_candidate(c, d.floor_mse) for c in d.ranking],
         "added": [_added(a, d.floor_mse) for a in d.added],
         "chains": [c.to_json() for c in d.chains],
+        "set_aside_on_final_fit": d.set_aside,
         "model": d.before.model.to_json(), "final_model": d.final.model.to_json(),
         "seconds": d.seconds,
         "closed_loop": d.closed_loop,
@@ -183,6 +184,7 @@ def terminal(d: Diagnosis) -> str:
     out.append(_table(["effect", "fitted as", "explained", "error removed", "z", "significant",
                        f"{max(d.before.error)}-step removed", "parameters"], rows))
     out += [f"set aside: {c.name} {doubt(c)}" for c in d.ranking if c.judgement.significant and doubt(c)]
+    out += [f"set aside by --auto: {name} {why}" for name, why in d.set_aside.items()]
     for a in d.added:
         out += ["", f"added {a.name} ({a.fit.granularity}): {a.fit.effect.to_json(a.fit.values)}"]
         out += [t for t in [_unidentified_text(a.fit), _noise_fit_text(a)] if t]
