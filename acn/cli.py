@@ -145,6 +145,10 @@ def collect_config_from_args(args: argparse.Namespace):
         raise UserError(f"--physics-hz ({args.physics_hz}) must be a multiple of --control-hz ({args.control_hz})")
     if args.corrector is not None and not args.corrector.is_dir():
         raise UserError(f"corrector directory {args.corrector} does not exist")
+    if args.corrector is not None:
+        from acn.models.corrector import load_for_target
+
+        load_for_target(args.corrector, [])  # the collected target is the simulator as is
     sim = SimConfig(physics_dt=1.0 / args.physics_hz, substeps=args.physics_hz // args.control_hz,
                     action_mode=args.action_mode, kp=args.kp, kd=args.kd, torque_limit=args.torque_limit)
     return CollectConfig(source=args.source, target=args.target, policy=args.policy, episodes=args.episodes,
@@ -225,6 +229,9 @@ def fit_parser() -> argparse.ArgumentParser:
     p.add_argument("datasets", nargs="+", type=Path, help="paired dataset directories")
     p.add_argument("--out", required=True, type=Path, help="model directory to create")
     p.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
+    p.add_argument("--model", default=None, metavar="MODEL.json",
+                   help="fit on top of this model of the target simulator (e.g. acn-diagnose --save-model's): its "
+                   "effects are written into the target, and the network learns what they leave (inverse only)")
     p.add_argument("--variant", default=d.variant, choices=VARIANTS,
                    help="inverse: regress Gauss-Newton labels delta_a* from same-state re-simulations (default); "
                    "paper: learned Jacobian (the paper's, degenerate); mujoco-jacobian: J from the target")
@@ -309,11 +316,17 @@ def fit_main(argv: list[str] | None = None) -> int:
                         round_epochs=args.round_epochs, threads=args.threads, calibrate=args.calibrate,
                         label_fd_eps=args.label_fd_eps, sensor_inputs=args.sensor_inputs,
                         train_threads=args.train_threads, cuda_graph=args.cuda_graph)
+        target = None
+        if args.model is not None:
+            from acn.toolkit.effects import Model
+
+            target = Model.parse(args.model)
         with _ray_executor(args, "acn-fit"):
-            model, metrics = fit(args.datasets, cfg, log=lambda line: print(line, file=sys.stderr))
+            model, metrics = fit(args.datasets, cfg, log=lambda line: print(line, file=sys.stderr), target=target)
         path = save(model, metrics, args.out, overwrite=args.overwrite)
-        target = (model.config["training_data"]["target"] or {}).get("simulator")
-        physics = shlex.join(["acn-diagnose", str(args.datasets[0]), "--side", "source", "--model", str(target),
+        simulator = (model.config["training_data"]["target"] or {}).get("simulator")
+        physics = shlex.join(["acn-diagnose", str(args.datasets[0]), "--side", "source", "--model",
+                              str(args.model or simulator),
                               "--auto", "--closed-loop", "4", "--corrector", str(path)]) \
             if len(args.datasets) == 1 else None
         _print_fit_summary(metrics, path, physics)
@@ -617,6 +630,11 @@ def diagnose_main(argv: list[str] | None = None) -> int:
         if args.corrector is not None and not args.corrector.is_dir():
             raise UserError(f"corrector directory {args.corrector} does not exist")
         model = Model.parse(args.model)
+        from acn.models.corrector import load_for_target
+
+        for corrector in (model.corrector, args.corrector, args.explain_corrector):
+            if corrector:  # each is applied to the model as given
+                load_for_target(corrector, [e.to_json() for e in model.effects])
         cfg = DiagnoseConfig(horizons=horizons, candidates=candidates, seed=args.seed,
                              auto_alternatives=args.auto_alternatives, finest=args.finest)
         cfg.validate()

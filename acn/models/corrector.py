@@ -125,6 +125,26 @@ class Corrector(nn.Module):
             raise UserError(f"{d / WEIGHTS} gives non-finite corrections (corrupt weights or normalisation)")
         return model.freeze()
 
+    @property
+    def target_effects(self) -> list[dict]:
+        """The physical effects (JSON, ``AppliedEffect.to_json``) of the target model it was fitted
+        on top of (``acn-fit --model``); [] for the target simulator as recorded."""
+        return list((self.config.get("training_data") or {}).get("target_effects") or [])
+
+
+def load_for_target(directory: str | Path, effects: list[dict]) -> Corrector:
+    """``Corrector.load``, refused in one line unless the corrector was fitted for a target with
+    exactly ``effects`` (JSON; [] the simulator as is): a network that learned what ground
+    softness leaves corrects the wrong thing on a model without it."""
+    corrector = Corrector.load(directory)
+    if corrector.target_effects != list(effects):
+        def text(e: list[dict]) -> str:
+            return " + ".join(x.get("name", "?") for x in e) or "nothing"
+
+        raise UserError(f"corrector {directory} was fitted for a target with {text(corrector.target_effects)} added; "
+                        f"here the target has {text(effects)} added (fit one for it: acn-fit --model MODEL.json)")
+    return corrector
+
 
 def default_config(variant: str, hidden: int, layers: int, sensors: bool | None = None) -> dict:
     return {

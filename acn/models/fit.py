@@ -28,6 +28,14 @@ From files to a frozen corrector, top to bottom:
 
 Fields of ``FitConfig`` left None take the variant's default (``VARIANT_DEFAULTS``).
 
+On top of a physical model (``fit(..., target=Model)``, ``acn-fit --model MODEL.json``): the
+target is the dataset's target simulator with that model's effects written in (e.g. what
+``acn-diagnose --auto --save-model`` added), for labels, rounds, the one-step reference and the
+closed loop, so the network learns what the physics leaves. Only ``inverse`` re-simulates every
+target it learns from (``paper`` and ``mujoco-jacobian`` learn the recorded, nominal target's
+residual). The corrector records the effects (``training_data.target_effects``) and is refused
+where it would be applied to another model.
+
 At deployment the corrector runs in the target and sees only the target's own state.
 """
 
@@ -461,17 +469,35 @@ def same_state_rows(d: PairedTransitions, resim, weights: np.ndarray, solver: So
     return Labelled(d.state, d.action, d.next_state, solve(resim, d.state, d.action, d.next_state, _OUT, weights, solver))
 
 
-def _resimulators(info: dict, threads: int | None):
-    """(source, target) Resimulators of the dataset's models; the source one only if resimulable."""
-    from acn.datasets.record import config_from_metadata
+def _resimulators(ccfg, threads: int | None):
+    """(collection config, source, target) Resimulators of the dataset's models (the target with
+    the effects of ``fit``'s target model)."""
     from acn.toolkit.resim import Resimulator
 
-    cfg = config_from_metadata(info)
-    return cfg, Resimulator(cfg.source, cfg.source_sim, threads=threads), Resimulator(cfg.target, cfg.sim, threads=threads)
+    return (ccfg, Resimulator(ccfg.source, ccfg.source_sim, threads=threads),
+            Resimulator(ccfg.target, ccfg.target_sim, threads=threads))
 
 
-def fit(paths: list[str | Path], cfg: FitConfig, log=print) -> tuple[Corrector, dict]:
-    """Steps 1-9 of the module docstring; returns the frozen corrector and its metrics."""
+def _target_effects(target, variant: str, target_sim: str | None) -> list:
+    """The effects of the target model ``fit`` is given (``[]``: the dataset's own target)."""
+    if target is None:
+        return []
+    if target.corrector:
+        raise UserError(f"--model carries a corrector ({target.corrector}); give a model with effects only")
+    if target.backend != target_sim:
+        raise UserError(f"--model is a {target.backend} model; the datasets' target simulator is {target_sim}")
+    if target.effects and variant not in LABELLED:
+        raise UserError(f"--model with effects needs a variant that re-simulates the target ({', '.join(LABELLED)}); "
+                        f"{variant} learns the recorded target's residual")
+    return list(target.effects)
+
+
+def fit(paths: list[str | Path], cfg: FitConfig, log=print, target=None) -> tuple[Corrector, dict]:
+    """Steps 1-9 of the module docstring; returns the frozen corrector and its metrics.
+    ``target``: an ``acn.toolkit.effects.Model`` of the target simulator whose effects the
+    target gets (module docstring); None: the dataset's target as recorded."""
+    from acn.datasets.record import config_from_metadata
+
     cfg = cfg.resolved()
     t0 = time.perf_counter()
     device = torch.device(cfg.device)
@@ -480,6 +506,10 @@ def fit(paths: list[str | Path], cfg: FitConfig, log=print) -> tuple[Corrector, 
     target_sim = (data.info["target"] or {}).get("simulator")
     if cfg.variant != "paper" and target_sim != "mujoco":
         raise UserError(f"variant {cfg.variant} needs datasets whose target simulator is mujoco")
+    effects = _target_effects(target, cfg.variant, target_sim)
+    ccfg = config_from_metadata(data.info, target_effects=effects)
+    if effects:
+        log(f"target: {target.describe()} (the network learns what these effects leave)")
     is_val = split_episodes(data.episode, cfg.val_fraction, cfg.seed)
     train_d, val_d = data.subset(~is_val), data.subset(is_val)
     val_all = val_d  # every held-out row: the one-step evaluation is on the same rows for every variant
@@ -497,7 +527,7 @@ def fit(paths: list[str | Path], cfg: FitConfig, log=print) -> tuple[Corrector, 
         f"after the {pct:g}th-percentile filter {len(train_d)} train / {len(val_d)} val")
 
     weights = 1.0 / spread
-    sims = _resimulators(data.info, cfg.threads) if target_sim == "mujoco" else None
+    sims = _resimulators(ccfg, cfg.threads) if target_sim == "mujoco" else None
     timing: dict[str, float] = {}
     labels: dict[str, Labelled] = {}
     solver = cfg.solver()
@@ -605,13 +635,12 @@ def fit(paths: list[str | Path], cfg: FitConfig, log=print) -> tuple[Corrector, 
         log(f"closed-loop evaluation skipped: the dataset's policy {data.info.get('policy')!r} is not a built-in "
             "policy this command can run again (for a PPO policy: acn-ppo --eval POLICY --corrector DIR)")
     elif cfg.eval_episodes > 0:
-        from acn.datasets.record import config_from_metadata
         from acn.models.evaluate import closed_loop
 
         log(f"closed loop: {cfg.eval_episodes} held-out episodes of {cfg.eval_seconds:g} s: uncorrected, corrected"
             + (", same-state and tracking oracles" if cfg.oracles and sims is not None else ""))
         t = time.perf_counter()
-        metrics["closed_loop"] = closed_loop(config_from_metadata(data.info), model, cfg.eval_episodes,
+        metrics["closed_loop"] = closed_loop(ccfg, model, cfg.eval_episodes,
                                              cfg.eval_seconds, list(OUTPUT_CHANNELS), spread,
                                              oracles=cfg.oracles and sims is not None, solver=cfg.oracle_solver(),
                                              log=log)
@@ -627,6 +656,7 @@ def fit(paths: list[str | Path], cfg: FitConfig, log=print) -> tuple[Corrector, 
         "normalisation": norm_dict,
         "training_data": {"datasets": data.sources, "fingerprint": fingerprint(data.sources),
                           "source": data.info["source"], "target": data.info["target"],
+                          "target_effects": [e.to_json() for e in effects],
                           "action_mode": data.info["action_mode"], "control_hz": data.info["control_hz"],
                           "policy": data.info["policy"]},
         "action_channels": data.info["action_names"],

@@ -60,7 +60,7 @@ from torch import nn
 from acn.atomic import move_into_place, temporary_beside
 from acn.errors import UserError
 from acn.models.acn import INPUT_CHANNELS
-from acn.models.corrector import Corrector, torch_threads
+from acn.models.corrector import Corrector, load_for_target, torch_threads
 from acn.models.evaluate import HELD_OUT_SEED_OFFSET, distribution_stats, episode_stats
 from acn.models.fit import FitConfig
 from acn.models.policy_io import WalkingPolicy, policy_config
@@ -298,7 +298,7 @@ def load_corrector(directory: str | Path, env: EnvConfig) -> Corrector:
     d = Path(directory)
     if not d.is_dir():
         raise UserError(f"corrector directory {d} does not exist")
-    corrector = Corrector.load(d)
+    corrector = load_for_target(d, [])  # the MuJoCo the policy is evaluated in is the simulator as is
     data = corrector.config.get("training_data") or {}
     mode, hz = data.get("action_mode"), data.get("control_hz")
     ours = round(1.0 / env.sim.control_dt, 9)
