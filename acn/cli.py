@@ -630,11 +630,6 @@ def diagnose_main(argv: list[str] | None = None) -> int:
         if args.corrector is not None and not args.corrector.is_dir():
             raise UserError(f"corrector directory {args.corrector} does not exist")
         model = Model.parse(args.model)
-        from acn.models.corrector import load_for_target
-
-        for corrector in (model.corrector, args.corrector, args.explain_corrector):
-            if corrector:  # each is applied to the model as given
-                load_for_target(corrector, [e.to_json() for e in model.effects])
         cfg = DiagnoseConfig(horizons=horizons, candidates=candidates, seed=args.seed,
                              auto_alternatives=args.auto_alternatives, finest=args.finest)
         cfg.validate()
@@ -644,6 +639,11 @@ def diagnose_main(argv: list[str] | None = None) -> int:
 
             robot_config(args.measured, data, args.side, model, args.closed_loop, args.closed_loop_seconds,
                          args.corrector)
+        from acn.models.corrector import load_for_target
+
+        for corrector in (model.corrector, args.corrector, args.explain_corrector):
+            if corrector:  # each is applied to the model as given
+                load_for_target(corrector, [e.to_json() for e in model.effects])
         from tqdm import tqdm
 
         with _ray_executor(args, "acn-diagnose"), tqdm(total=100, file=sys.stderr, bar_format="{l_bar}{bar}| {elapsed} {postfix}",
