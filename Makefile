@@ -50,6 +50,10 @@ demo: $(STAMP)
 		--corrector $(OUT)/acn_inverse --json $(OUT)/trot_pb_mj.diagnosis.json \
 		--report $(OUT)/trot_pb_mj.report.html --save-model $(OUT)/trot_pb_mj.model.json
 	@echo "physics vs network on the trot gap: $(OUT)/trot_pb_mj.report.html, $(OUT)/trot_pb_mj.diagnosis.json (closed_loop)"
+	# Both at once: a corrector fitted on top of that physics model learns what its effects leave
+	# (its evaluation: the physics model alone, with the corrector, and the oracles of the physics model).
+	$(BIN)/acn-fit $(OUT)/trot_pb_mj --model $(OUT)/trot_pb_mj.model.json --out $(OUT)/acn_on_physics --overwrite
+	@echo "corrector on top of the physics model: $(OUT)/acn_on_physics (metrics.json: closed_loop)"
 	# Measurements with two hidden effects (the answer goes to $(OUT)/hidden.answer.json), then the diagnosis:
 	# compare, where, rank the catalogue, add effects while the error falls, report.
 	$(BIN)/acn-collect --source mujoco --policy excite --episodes 6 --seconds 8 --seed 3 --workers 2 \
