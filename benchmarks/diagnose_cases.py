@@ -176,8 +176,9 @@ def pairs(args, root: Path) -> None:
                 cells.append(f"{effect}.{key}={value:.4g} (true {true})")
         extra = [f"{n}({', '.join(f'{k}={float(np.mean(v)):.4g}' for k, v in fitted[n].items())})"
                  for n in fitted if n not in {e for e, _, _ in truth}]
+        aside = f" set_aside={sorted(d.set_aside)}" if d.set_aside else ""
         print(f"{name:18s} verdict={d.verdict:11s} both={'yes' if both else 'no':3s} {' '.join(cells)}"
-              f"{' also ' + ' '.join(extra) if extra else ''} {time.perf_counter() - t:.0f}s", flush=True)
+              f"{' also ' + ' '.join(extra) if extra else ''}{aside} {time.perf_counter() - t:.0f}s", flush=True)
     print(f"pairs_both_named={named[0]}/{named[1]}")
     print(f"pairs_within_15pct={within[0]}/{within[1]}")
 
@@ -229,7 +230,8 @@ def main() -> None:
                 line += f" {key}={np.round(f.mean(), 4)} (true {np.round(np.mean(true), 4)}, error {err:.1%}) explained={explained:.0%}"
             tally["within_15pct"][1] += 1
             tally["removed_80pct"][1] += 1
-        print(line + f" added={[a.name for a in d.added]} {seconds:.0f}s", flush=True)
+        aside = f" set_aside={sorted(d.set_aside)}" if d.set_aside else ""
+        print(line + f" added={[a.name for a in d.added]}{aside} {seconds:.0f}s", flush=True)
         if d.verdict != want:
             print(f"  {d.verdict}: {d.reason}", flush=True)
     for k, (good, n) in tally.items():

@@ -159,6 +159,23 @@ def test_the_corrector_runs_in_closed_loop(small_dataset, tmp_path):
     assert np.abs(corrected.state[10:, 6:18] - target[10:, 6:18]).max() > 0.05  # a + 0.1 moves the joints
 
 
+def test_a_corrector_fitted_on_top_of_effects_runs_on_a_target_with_them(small_dataset, tmp_path):
+    """acn-fit --model: the view re-simulates the target the corrector was fitted for (here a
+    zero correction on a ground with a 0.06 s time constant: the robot sinks about 12 mm)."""
+    from acn.datasets.reader import load_frames
+    from acn.models.corrector import Corrector
+    from acn.viz.trajectories import corrected_target, recorded_episode
+
+    effects = [{"name": "ground_softness", "params": {"timeconst": 0.06}}]
+    corrector = Corrector.load(make_corrector(tmp_path / "c", training_data={"target_effects": effects}))
+    frames = load_frames(small_dataset)
+    episode = recorded_episode(frames, 0)
+    corrected = corrected_target(frames, episode, corrector)
+    assert corrected.label == "mujoco + ground_softness(timeconst=0.06) corrected", corrected.label
+    sink = episode.trajectory("target").state[20:, 2] - corrected.state[20:, 2]  # trunk height, m
+    assert 0.005 < float(np.median(sink)) < 0.02, np.median(sink)
+
+
 def test_unpaired_dataset_and_default_output(tmp_path, monkeypatch):
     from acn.datasets.record import record
     from acn.toolkit.collector import CollectConfig

@@ -9,7 +9,7 @@ a new source of trajectories is one more ``Trajectory`` in ``EpisodeView.traject
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -152,17 +152,21 @@ def check_corrector_fits(config: dict, frames: RecordedFrames, directory: str) -
 def corrected_target(frames: RecordedFrames, episode: EpisodeView, corrector) -> Trajectory:
     """The target re-simulated in closed loop with ``a~ = a + F(s_target, a)``.
 
-    The target starts from the recorded target state of frame 0 and receives the recorded
+    The target is the dataset's target simulator with the physical effects the corrector was
+    fitted on top of (``acn-fit --model``; none for a corrector of the simulator as is). It starts from the recorded target state of frame 0 and receives the recorded
     source actions (the policy acts on the source state, so these are the actions a paired
     collection would send), corrected on its own state at every step. Stops early only if
     the simulator blows up. Frame k of the result is the state before the k-th action.
     """
     from acn.datasets.record import config_from_metadata
     from acn.toolkit.backends import SimulationDiverged, make_backend
+    from acn.toolkit.effects import Model
 
     import torch
 
     cfg = config_from_metadata(frames.info)
+    model = Model.from_json({"backend": cfg.target, "effects": corrector.target_effects}, where="the corrector's config")
+    cfg = replace(cfg, target_effects=list(model.effects))
     rows = frames.rows(episode.index)
     actions = frames.action[rows]
     states = np.empty((len(rows), len(STATE_NAMES)))
@@ -171,7 +175,7 @@ def corrected_target(frames: RecordedFrames, episode: EpisodeView, corrector) ->
     # busy 2-core machine instead of about 0.1 ms with one thread).
     torch.set_num_threads(1)
     try:
-        with make_backend(cfg.target, cfg.sim) as sim:
+        with make_backend(cfg.target, cfg.target_sim) as sim:
             s = sim.reset(frames.target_state[rows[0]])
             n = 0
             for k, a in enumerate(actions):
@@ -184,4 +188,4 @@ def corrected_target(frames: RecordedFrames, episode: EpisodeView, corrector) ->
                 s = sim.get_state()
     finally:
         torch.set_num_threads(threads)
-    return Trajectory("corrected", f"{cfg.target} corrected", states[:n], frames.frame[rows][:n])
+    return Trajectory("corrected", f"{model.describe()} corrected", states[:n], frames.frame[rows][:n])

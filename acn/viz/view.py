@@ -54,7 +54,7 @@ def default_rrd_path(dataset: Path) -> Path:
 
 def load_corrector(directory: Path, frames: RecordedFrames):
     """A frozen corrector that fits this dataset, or a one-line ``UserError``."""
-    from acn.models.corrector import CONFIG, load_for_target
+    from acn.models.corrector import CONFIG, Corrector
 
     if not frames.paired:
         raise UserError(f"--corrector needs a paired dataset (source and target); {frames.path} has measurements only")
@@ -64,7 +64,7 @@ def load_corrector(directory: Path, frames: RecordedFrames):
             check_corrector_fits(json.loads(path.read_text()), frames, str(directory))
         except (json.JSONDecodeError, UnicodeDecodeError, AttributeError, TypeError):
             pass  # Corrector.load reports a broken config
-    return load_for_target(directory, [])  # the view re-simulates the dataset's own target
+    return Corrector.load(directory)
 
 
 def add_model_trajectories(model_path: str | Path, frames: RecordedFrames, episodes: list[EpisodeView],
