@@ -153,10 +153,11 @@ def corrected_target(frames: RecordedFrames, episode: EpisodeView, corrector) ->
     """The target re-simulated in closed loop with ``a~ = a + F(s_target, a)``.
 
     The target is the dataset's target simulator with the physical effects the corrector was
-    fitted on top of (``acn-fit --model``; none for a corrector of the simulator as is). It starts from the recorded target state of frame 0 and receives the recorded
-    source actions (the policy acts on the source state, so these are the actions a paired
-    collection would send), corrected on its own state at every step. Stops early only if
-    the simulator blows up. Frame k of the result is the state before the k-th action.
+    fitted on top of (``acn-fit --model``; none for a corrector of the simulator as is). It
+    starts from the recorded target state of frame 0 and receives the recorded source actions
+    (the policy acts on the source state, so these are the actions a paired collection would
+    send), corrected on its own state at every step. Stops early only if the simulator blows
+    up. Frame k of the result is the state before the k-th action.
     """
     from acn.datasets.record import config_from_metadata
     from acn.toolkit.backends import SimulationDiverged, make_backend
@@ -165,7 +166,8 @@ def corrected_target(frames: RecordedFrames, episode: EpisodeView, corrector) ->
     import torch
 
     cfg = config_from_metadata(frames.info)
-    model = Model.from_json({"backend": cfg.target, "effects": corrector.target_effects}, where="the corrector's config")
+    model = Model.from_json({"backend": cfg.target, "effects": corrector.target_effects},
+                            where="the corrector's config")
     cfg = replace(cfg, target_effects=list(model.effects))
     rows = frames.rows(episode.index)
     actions = frames.action[rows]

@@ -10,9 +10,10 @@ still lets armature or damping fit a few per cent of the contact bias that noise
 readings leaves. An effect whose final fit lowers the one-step error but not the open-loop
 error at the longest horizon is not added (``rank.one_step_only``), nor one whose final fit
 (on more rows, at the granularity chosen) is no longer significant or turns implausible
-(``rank.implausible``): it is set aside with the reason, and the next candidate is tried. Then ``revisit`` judges each added effect again beside the others, and ``other_starts``
-runs the same greedy chain from the next-best first candidates, keeping one that predicts
-clearly better.
+(``rank.implausible``): it is set aside with the reason, and the next candidate is tried.
+Then ``revisit`` judges each added effect again beside the others, and ``other_starts`` runs
+the same greedy chain from the next-best first candidates, keeping one that predicts clearly
+better.
 """
 
 from __future__ import annotations

@@ -118,7 +118,8 @@ def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Cand
         why = ("no candidate improves held-out predictions significantly" if best is None
                or not best.judgement.significant else
                f"the best plausible candidate, {top.name}, explains only {top.judgement.explained(floor_mse):.0%} of it"
-               if top is not None else f"the best candidate, {best.name}, {doubt(best) or set_aside.get(best.name, '')}")
+               if top is not None else
+               f"the best candidate, {best.name}, {doubt(best) or set_aside.get(best.name, '')}")
         return "unexplained", f"{structured:.0%} of the error is structured (above the noise floor); {why}{aside}", ()
     extra = f"; the best candidate, {best.name}, removes {best.judgement.removed:.1%} of it" if best else ""
     if best is not None and (implausible(best.fit) or best.name in set_aside):
