@@ -99,6 +99,14 @@ def test_consistent_logs_have_no_findings(rows):
     assert check(_episodes(fast), 1 / 200) == []
 
 
+def test_a_robot_that_falls_onto_its_back_is_not_a_convention_error():
+    # The open-loop pace gait flips the robot within 2 s (benchmarks/diagnose_cases.py's "nominal
+    # (pace)" log): the trunk then lies 6 cm high for most rows, in the right units and frame.
+    fallen = simulate(LogSpec(seconds=6.0, episodes=1, seed=708, controller="pace"))
+    assert np.median(fallen["base_pos_z"]) < 0.08 and abs(fallen["base_roll"][-1]) > 3.0  # on its back
+    assert check(_episodes(fallen), 1 / 50) == []
+
+
 @pytest.mark.parametrize("name", list(CORRUPTIONS))
 def test_each_corruption_is_named(rows, name):
     change, where, what = CORRUPTIONS[name]

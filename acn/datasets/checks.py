@@ -37,6 +37,7 @@ if TYPE_CHECKING:
 WINDOW_S = 0.04        # s, the window a velocity is compared over (position noise / window = rate noise)
 DEG = 180.0 / np.pi    # a deg/s velocity is DEG x the rate of change of a rad position
 MIN_ROWS = 20          # fewer finite windows than this: the check is skipped
+START_ROWS = 25        # rows that count as where an episode starts (0.5 s at 50 Hz)
 GRAVITY = 9.81
 # Stance feet by forward kinematics on consistent logs (both simulators, robot_log.py at up to 3x
 # its typical sensor noise): median height within +-0.3 cm, 10-90 % range at most 2.2 cm.
@@ -219,7 +220,7 @@ def velocities(episodes: list[Episode], dt: float, suspect: set[str] = frozenset
 
 # ----- pose ------------------------------------------------------------------------------------
 def pose(episodes: list[Episode]) -> list[Finding]:
-    """Joint angles in the A1's ranges, the trunk upright where episodes start, its height."""
+    """Joint angles in the A1's ranges, the trunk upright and its height where episodes start."""
     from acn.toolkit.robot import STANDING_HEIGHT, joint_limits
 
     states = np.concatenate([s for s, _ in episodes])
@@ -253,12 +254,15 @@ def pose(episodes: list[Episode]) -> list[Finding]:
         out.append(Finding("pose", GROUPS["base_rpy"], f"the trunk is tilted by more than 0.8 rad where most episodes "
                            f"start (median |roll| {r:.2f}, |pitch| {p:.2f} rad): the schema's orientation is extrinsic "
                            "XYZ Euler angles in rad (from a quaternion: which column is w?)"))
-    z = states[:, STATE_NAMES.index("base_pos_z")]
-    z = z[np.isfinite(z)]
-    if len(z) >= MIN_ROWS and not 0.08 <= (med := float(np.median(z))) <= 0.6:
+    # Height where episodes start, too: a robot that falls onto its back lies with the trunk 6 cm
+    # high for most of a log, in the right units and frame.
+    iz = STATE_NAMES.index("base_pos_z")
+    starts = [z[np.isfinite(z)][:START_ROWS] for z in (s[:, iz] for s, _ in episodes)]
+    starts = [float(np.median(z)) for z in starts if len(z)]
+    if np.isfinite(states[:, iz]).sum() >= MIN_ROWS and not 0.08 <= (med := float(np.median(starts))) <= 0.6:
         hint = 'mm? map it with "scale": 0.001' if 0.08 <= med / 1000 <= 0.6 else \
             f"the schema's base_pos_z is the trunk origin's height above the ground (the A1 stands at {STANDING_HEIGHT} m)"
-        out.append(Finding("pose", ("base_pos_z",), f"base_pos_z has a median of {med:.4g} m: {hint}"))
+        out.append(Finding("pose", ("base_pos_z",), f"base_pos_z is {med:.4g} m where episodes start (median): {hint}"))
     return out
 
 
