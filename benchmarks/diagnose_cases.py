@@ -157,6 +157,8 @@ def dropped(args) -> tuple[str, ...]:
 def pairs(args, root: Path) -> None:
     named, within = [0, 0], [0, 0]
     for i, (name, (over, truth)) in enumerate(PAIRS.items()):
+        if args.cases and name not in args.cases.split(","):
+            continue
         spec = LogSpec(seconds=args.seconds, episodes=args.episodes, seed=300 + i, noise=args.noise,
                        drop=dropped(args), **{"controller": "sines", **over})
         write_log(root / f"p{i}.csv", spec)
@@ -196,6 +198,9 @@ def main() -> None:
     args = ap.parse_args()
     root = Path(tempfile.mkdtemp())
     if args.pairs:
+        unknown = [n for n in (args.cases.split(",") if args.cases else []) if n not in PAIRS]
+        if unknown:
+            ap.error(f"no pair {unknown[0]!r}; the pairs: {', '.join(PAIRS)}")
         return pairs(args, root)
     cases, seed = (OTHER, 700) if args.other else (CASES, 100)
     unknown = [n for n in (args.cases.split(",") if args.cases else []) if n not in cases]
