@@ -137,6 +137,7 @@ def test_a_candidate_whose_final_fit_is_set_aside_gives_way_to_the_runner_up(tmp
     assert not d.reason.startswith("joint_damping"), d.reason
     assert "joint_damping set aside: refused for the test" in d.reason, d.reason
     assert "set aside by --auto: joint_damping refused for the test" in terminal(d)
+    assert "--auto: refused for the test" in write_html(d, tmp_path / "report.html").read_text()
 
 
 def test_a_richer_effect_gives_way_to_a_simpler_one_beside_the_others(tmp_path):

@@ -72,6 +72,14 @@ def _unidentified_text(fit) -> str:
             f"{', '.join(loose)}") if loose else ""
 
 
+def _set_aside_because(d: Diagnosis, c: Candidate) -> str:
+    """Why a significant candidate is not the explanation: ``rank.doubt`` on its ranking fit, or
+    (``--auto``) its final fit; "" otherwise."""
+    if not c.judgement.significant:
+        return ""
+    return doubt(c) or (f"--auto: {d.set_aside[c.name]}" if c.name in d.set_aside else "")
+
+
 def _params_text(fit, most: int = 4) -> str:
     free = _free(fit)
     if len(free) > most:  # 12 per-joint values: the spread, the rest is in the JSON
@@ -266,7 +274,7 @@ def write_html(d: Diagnosis, path: str | Path) -> Path:
     ranking = "".join(
         f"<tr><td>{c.name}</td><td>{c.fit.granularity}</td><td>{c.judgement.explained(d.floor_mse):.0%}</td>"
         f"<td>{c.judgement.removed:+.1%}</td><td>{c.judgement.z:.1f}</td><td>{_longer(c)}</td>"
-        f"<td>{html.escape(_params_text(c.fit))}</td><td>{html.escape(doubt(c) if c.judgement.significant else '')}</td>"
+        f"<td>{html.escape(_params_text(c.fit))}</td><td>{html.escape(_set_aside_because(d, c))}</td>"
         "</tr>" for c in d.ranking)
     added = "".join(f"<li><b>{a.name}</b> ({a.fit.granularity}) {html.escape(_params_text(a.fit))}: headline "
                     f"{a.before.headline:.4f} &rarr; {a.after.headline:.4f}"
