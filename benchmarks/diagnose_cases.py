@@ -197,15 +197,12 @@ def main() -> None:
     ap.add_argument("--no-contacts", action="store_true", help="logs without foot contact flags")
     args = ap.parse_args()
     root = Path(tempfile.mkdtemp())
-    if args.pairs:
-        unknown = [n for n in (args.cases.split(",") if args.cases else []) if n not in PAIRS]
-        if unknown:
-            ap.error(f"no pair {unknown[0]!r}; the pairs: {', '.join(PAIRS)}")
-        return pairs(args, root)
-    cases, seed = (OTHER, 700) if args.other else (CASES, 100)
+    cases, seed = (PAIRS, 300) if args.pairs else (OTHER, 700) if args.other else (CASES, 100)
     unknown = [n for n in (args.cases.split(",") if args.cases else []) if n not in cases]
     if unknown:
         ap.error(f"no case {unknown[0]!r}; the cases: {', '.join(cases)}")
+    if args.pairs:
+        return pairs(args, root)
     tally = {"ranked_first": [0, 0], "within_15pct": [0, 0], "removed_80pct": [0, 0], "verdict_right": [0, 0]}
     for name in args.cases.split(",") if args.cases else cases:
         over, want, effect, key, true = cases[name]
