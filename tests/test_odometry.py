@@ -17,7 +17,7 @@ NO_MOCAP = tuple(GROUPS["base_pos"] + GROUPS["base_linvel"])
 
 def _errors(estimated: np.ndarray, true: np.ndarray) -> tuple[float, float]:
     """(median |height error| m, median |velocity error| m/s) of (height, velocity) pairs."""
-    (h, v), (th, tv) = estimated, true
+    (h, v, _), (th, tv) = estimated, true
     return float(np.median(np.abs(h - th))), float(np.median(np.linalg.norm(v - tv, axis=1)))
 
 
@@ -104,6 +104,41 @@ def test_a_log_without_motion_capture_still_names_the_latency(no_mocap_log):
     d = diagnose(load_measurements(no_mocap_log["blind"]), Model.parse("mujoco"), FAST, add=["actuator_latency"])
     assert d.ranking[0].name == "actuator_latency" and d.verdict == "effect", d.reason
     assert close(d.added[0].fit.values["seconds"], 0.015, rel=0.15)
+
+
+def _soft_ground(spec):
+    for g in spec.geoms:   # every contact softer: MuJoCo's solref time constant 0.05 s (nominal 0.02)
+        g.solref = [0.05, 1.0]
+
+
+def test_without_motion_capture_a_softer_ground_is_named_and_each_model_starts_at_its_own_sink(tmp_path):
+    """The estimated height puts the feet as deep as the started model's ground carries them.
+    On a log whose ground is soft (the feet sink 8-11 mm, nominal MuJoCo 1.3 mm), a model with
+    that ground starts lower by the difference, and the diagnosis ranks ground_softness first
+    and fits it. Before, every model started at the nominal sink: the soft model's trunk fell
+    through its first step, and the diagnosis named ground_friction instead."""
+    from dataclasses import replace
+
+    from test_diagnose import FAST, close
+
+    from acn.models.diagnose import diagnose
+    from acn.toolkit.effects import Model
+    from acn.toolkit.robot import ModelParams
+
+    write_log(tmp_path / "log.csv", LogSpec(noise=1.0, seed=104, seconds=6.0, drop=NO_MOCAP, spec_edit=_soft_ground))
+    path, _ = import_log(tmp_path / "log.csv", tmp_path / "log", ImportConfig(50, 60.0, 1.5, 33.5))
+    data = load_measurements(path)
+    blind, _ = fill_derived(data, "mujoco")
+    rows = np.arange(len(blind))
+    soft = replace(data.control, params=ModelParams(ground_timeconst=0.05))
+    lower = blind.starts(rows, "mujoco", data.control) - blind.starts(rows, "mujoco", soft)
+    z = SLICES["base_pos"].start + 2
+    deeper = standing_sink("mujoco", soft.params) - standing_sink("mujoco")
+    assert 0.005 < deeper < 0.01 and np.allclose(np.delete(lower, z, axis=1), 0.0), deeper
+    assert np.allclose(lower[:, z], deeper * blind.height.share) and np.all(lower[:, z] >= deeper - 1e-12)
+    d = diagnose(data, Model.parse("mujoco"), FAST, add=["ground_softness"])
+    assert d.ranking[0].name == "ground_softness" and d.verdict == "effect", (d.ranking[0].name, d.reason)
+    assert close(d.added[0].fit.values["timeconst"], 0.05, rel=0.25), d.added[0].fit.values
 
 
 def test_the_smoother_bridges_slipping_feet_with_the_accelerometer():

@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -22,6 +23,9 @@ from acn.datasets.reader import read_columns, read_info
 from acn.errors import UserError
 from acn.toolkit.backends import SimConfig
 from acn.toolkit.state import ACTION_DIM, GROUPS, SLICES, STATE_NAMES
+
+if TYPE_CHECKING:
+    from acn.datasets.odometry import EstimatedHeight
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
@@ -43,6 +47,7 @@ class Measurements:
     info: dict               # the dataset's ``acn`` block
     description: str = ""
     missing: list[str] = field(default_factory=list)   # channels the log lacks
+    height: EstimatedHeight | None = None  # how estimated trunk heights depend on the started model's ground
 
     def __len__(self) -> int:
         return len(self.state)
@@ -65,7 +70,21 @@ class Measurements:
     def subset(self, rows: np.ndarray) -> "Measurements":
         return Measurements(self.state[rows], self.action[rows], self.next_state[rows], self.effort[rows],
                             self.episode[rows], self.frame[rows], self.control, self.info, self.description,
-                            self.missing)
+                            self.missing, None if self.height is None else self.height.subset(rows))
+
+    def starts(self, rows: np.ndarray, backend: str, configs: SimConfig | list[SimConfig],
+               model: np.ndarray | None = None) -> np.ndarray:
+        """States ``rows`` as a simulator of ``backend`` built from ``configs[model[i]]`` (``model``
+        default all 0) starts from them: a copy, where the trunk's height was estimated with the
+        feet as deep as that model's ground carries them (``EstimatedHeight``)."""
+        states = self.state[rows]
+        if self.height is None:
+            return states.copy()
+        from acn.datasets.odometry import standing_sink
+
+        configs = [configs] if isinstance(configs, SimConfig) else configs
+        sinks = np.array([standing_sink(backend, c.params, c.physics_dt) for c in configs])
+        return self.height.for_sink(states, rows, sinks[np.zeros(len(rows), int) if model is None else model])
 
     def previous_actions(self, rows: np.ndarray, count: int) -> np.ndarray:
         """(len(rows), count, 12): the actions of the ``count`` steps before each row, oldest first.
@@ -172,9 +191,9 @@ def fill_derived(m: Measurements, backend: str | None = None) -> tuple[Measureme
         from acn.datasets.odometry import fill_trunk, standing_sink
 
         sink = standing_sink(backend) if backend else 0.0
-        state, next_state, estimated = fill_trunk(state, next_state, linked, dt, m.missing, sink)
+        state, next_state, estimated, height = fill_trunk(state, next_state, linked, dt, m.missing, sink)
         derived = derived + estimated
     out = Measurements(state, m.action, next_state, m.effort, m.episode, m.frame, m.control, m.info,
-                       m.description, [c for c in m.missing if c not in derived])
+                       m.description, [c for c in m.missing if c not in derived], height if no_position else m.height)
     return out, derived
 

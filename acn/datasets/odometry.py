@@ -16,7 +16,10 @@ slip:
 - height: ``base_pos_z`` = minus their mean height, lowered by how deep the feet of the model
   that starts from the estimate sink into its ground (``standing_sink``: a soft contact carries
   the robot's weight a millimetre or two deep; starting it with the feet just touching, its
-  contacts would push too little and the trunk would drop: a structured one-step error);
+  contacts would push too little and the trunk would drop: a structured one-step error). That
+  depth belongs to the model, not to the log: a model with a softer ground (or a payload) sinks
+  deeper, so ``EstimatedHeight`` keeps how each row's height depends on it and a diagnosis
+  lowers the start of every model it tries by that model's own sink (``EstimatedHeight.for_sink``);
 - velocity, per sample: each touching point is at rest, so the trunk's world velocity is minus
   the mean velocity those points would have with the trunk origin at rest (joint speeds and
   the trunk's angular velocity, from ``mj_comVel``);
@@ -40,6 +43,7 @@ compared with a prediction.
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
@@ -100,12 +104,13 @@ class Odometry:
                                            self._box_centre + np.sign(down) * self._box_half)))
         return centre + np.einsum("...ij,...j->...i", rot, local)
 
-    def estimate(self, states: np.ndarray, sink: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-        """(height (N,), m; trunk-frame linear velocity (N, 3), m/s) of states (N, 43) whose
-        ``base_rpy``, ``joint_pos``, ``joint_vel`` and ``base_angvel`` are finite; contact flags
-        are used where present (module docstring). ``sink``: how deep the feet of the model that
-        will start from these states sink into its ground, standing on four (``standing_sink``),
-        m; on fewer points each carries more and sinks deeper in proportion."""
+    def estimate(self, states: np.ndarray, sink: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(height (N,), m; trunk-frame linear velocity (N, 3), m/s; sink share (N,)) of states
+        (N, 43) whose ``base_rpy``, ``joint_pos``, ``joint_vel`` and ``base_angvel`` are finite;
+        contact flags are used where present (module docstring). ``sink``: how deep the feet of
+        the model that will start from these states sink into its ground, standing on four
+        (``standing_sink``), m; on fewer points each carries more and sinks deeper in proportion:
+        height = height on the surface - sink * share, share = 4 / (points carrying, at least 1)."""
         m, d = self.model, self.data
         n, geoms = len(states), self.geoms
         x, y, z, w = rpy_to_quat(states[:, SLICES["base_rpy"]].T)
@@ -138,9 +143,10 @@ class Odometry:
         spin, linear = cvel[:, bodies, :3], cvel[:, bodies, 3:]
         moving = linear + np.cross(spin, points - com[:, None])                          # (N, G, 3) world
         total = weight.sum(axis=1)
-        height = -np.sum(weight * low, axis=1) / total - sink * len(FOOT_NAMES) / np.maximum(total, 1.0)
+        share = len(FOOT_NAMES) / np.maximum(total, 1.0)
+        height = -np.sum(weight * low, axis=1) / total - sink * share
         world = -np.sum(weight[..., None] * moving, axis=1) / total[:, None]
-        return height, np.einsum("nji,nj->ni", trunk.reshape(n, 3, 3), world)
+        return height, np.einsum("nji,nj->ni", trunk.reshape(n, 3, 3), world), share
 
 
 def smooth_velocity(legs: np.ndarray, change: np.ndarray | None, dt: float) -> np.ndarray:
@@ -185,20 +191,49 @@ def smooth_velocity(legs: np.ndarray, change: np.ndarray | None, dt: float) -> n
     return out
 
 
-def standing_sink(backend: str) -> float:
-    """How deep the nominal A1's feet sink into the ground of ``backend`` standing still on four
-    feet, m (soft contacts: MuJoCo 1.3 mm, PyBullet 0.0 mm): 1 s of holding the stance."""
-    return _standing_sink(backend)
+@dataclass
+class EstimatedHeight:
+    """How a log's estimated trunk heights (``base_pos_z`` of its states) depend on the model
+    started from them: height = height on the surface - sink * share (``Odometry.estimate``)."""
+
+    share: np.ndarray   # (N,) 4 / points carrying the robot, per row
+    sink: float         # m, the standing sink the heights were estimated for
+
+    def subset(self, rows: np.ndarray) -> "EstimatedHeight":
+        return EstimatedHeight(self.share[rows], self.sink)
+
+    def for_sink(self, states: np.ndarray, rows: np.ndarray, sink: np.ndarray | float) -> np.ndarray:
+        """A copy of ``states`` (rows ``rows`` of the log) started ``sink`` m deep instead (per row
+        or one value): the start of a model whose feet sink that deep standing."""
+        out = states.copy()
+        out[:, SLICES["base_pos"].start + 2] -= (np.asarray(sink) - self.sink) * self.share[rows]
+        return out
 
 
-@functools.cache
-def _standing_sink(backend: str) -> float:
+def standing_sink(backend: str, params=None, physics_dt: float = 0.001) -> float:
+    """How deep the A1's feet sink into the ground of ``backend`` standing still on four feet, m
+    (nominal soft contacts: MuJoCo 1.3 mm, PyBullet 0.0 mm; a ground of time constant 0.05 s:
+    8 mm in both), after 1 s of holding the stance. ``params`` (``ModelParams``, default nominal):
+    only what sets the depth counts, the ground and the weight it carries (``ground_timeconst``,
+    ``payload_mass``, ``payload_com``); the control law's effects do not change it."""
+    if params is None:
+        return _standing_sink(backend, physics_dt)
+    com = tuple(float(c) for c in params.payload_com)
+    return _standing_sink(backend, physics_dt, params.ground_timeconst, params.payload_mass, com)
+
+
+@functools.lru_cache(maxsize=4096)
+def _standing_sink(backend: str, physics_dt: float, timeconst: float | None = None, payload: float = 0.0,
+                   com: tuple[float, ...] = (0.0, 0.0, 0.0)) -> float:
     from acn.toolkit.backends import SimConfig, make_backend
     from acn.toolkit.backends.base import default_state
     from acn.toolkit.kinematics import FOOT_RADIUS, RobotKinematics
-    from acn.toolkit.robot import STANCE
+    from acn.toolkit.robot import STANCE, ModelParams
 
-    config = SimConfig()
+    params = ModelParams(payload_mass=payload, payload_com=np.array(com))
+    if timeconst is not None:
+        params.ground_timeconst = timeconst
+    config = SimConfig(physics_dt=physics_dt, substeps=max(1, int(round(0.02 / physics_dt))), params=params)
     with make_backend(backend, config) as sim:
         sim.reset(default_state())
         for _ in range(int(round(1.0 / config.control_dt))):
@@ -208,12 +243,13 @@ def _standing_sink(backend: str) -> float:
     return float(max(-feet.mean(), 0.0))
 
 
-def fill_trunk(state: np.ndarray, next_state: np.ndarray, linked: np.ndarray, dt: float,
-               missing: list[str], sink: float = 0.0) -> tuple[np.ndarray, np.ndarray, list[str]]:
+def fill_trunk(state: np.ndarray, next_state: np.ndarray, linked: np.ndarray, dt: float, missing: list[str],
+               sink: float = 0.0) -> tuple[np.ndarray, np.ndarray, list[str], EstimatedHeight | None]:
     """Copies of ``state`` / ``next_state`` (N, 43; row t + 1 follows row t where ``linked[t + 1]``,
     and then starts from row t's next state) with the missing ``base_pos`` and ``base_linvel``
-    channels estimated (module docstring), and the names of the channels filled. The joint
-    speeds and angular velocities must be finite; ``sink`` as in ``Odometry.estimate``."""
+    channels estimated (module docstring), the names of the channels filled, and how the states'
+    estimated heights depend on the sink (None where the height was measured). The joint speeds
+    and angular velocities must be finite; ``sink`` as in ``Odometry.estimate``."""
     odometry = Odometry()
     state, next_state = state.copy(), next_state.copy()
     velocity = [n for n in GROUPS["base_linvel"] if n in missing]
@@ -222,13 +258,15 @@ def fill_trunk(state: np.ndarray, next_state: np.ndarray, linked: np.ndarray, dt
     cols, acc = [SLICES["base_linvel"].start + i for i in axes], SLICES["imu_acc"]
     gravity = np.array([0.0, 0.0, -GRAVITY])
     has_acc = not np.isnan(state[:, acc]).all()
+    height = None
     if velocity or "base_pos_z" in missing:
-        h_now, v_now = odometry.estimate(state, sink)
+        h_now, v_now, share = odometry.estimate(state, sink)
         ends = np.flatnonzero(~np.r_[linked[1:], False])     # rows whose next state no row starts from
         h_next, v_next = np.r_[h_now[1:], 0.0], np.vstack([v_now[1:], np.zeros((1, 3))])
-        h_next[ends], v_next[ends] = odometry.estimate(next_state[ends], sink)
+        h_next[ends], v_next[ends], _ = odometry.estimate(next_state[ends], sink)
         if "base_pos_z" in missing:
             state[:, z], next_state[:, z] = h_now, h_next
+            height = EstimatedHeight(share, sink)
         if velocity:
             starts = np.flatnonzero(~linked)
             for a, b in zip(starts, np.r_[starts[1:], len(state)] - 1):   # one run of consecutive rows
@@ -253,4 +291,4 @@ def fill_trunk(state: np.ndarray, next_state: np.ndarray, linked: np.ndarray, dt
             state[:, SLICES["base_pos"].start + k] = where[:, k]
             next_state[:, SLICES["base_pos"].start + k] = where[:, k] + step[:, k]
     filled = set(velocity) | set(planar) | ({"base_pos_z"} & set(missing))
-    return state, next_state, [n for n in GROUPS["base_pos"] + GROUPS["base_linvel"] if n in filled]
+    return state, next_state, [n for n in GROUPS["base_pos"] + GROUPS["base_linvel"] if n in filled], height

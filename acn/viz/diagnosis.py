@@ -138,8 +138,9 @@ def predict_episode(problem, sim: Resimulator, stages: list[Stage], episode: int
     actions = d.action[ok]
     if corrector is not None:
         actions = corrector.correct(d.state[ok], actions)
-    pred = sim.run(np.tile(d.state[ok], (s, 1)), np.tile(actions, (s, 1)),
-                   np.tile(d.previous_actions(ok, problem.history), (s, 1, 1)), model=np.repeat(np.arange(s), n))
+    model = np.repeat(np.arange(s), n)
+    pred = sim.run(d.starts(np.tile(ok, s), sim.backend, sim.configs, model), np.tile(actions, (s, 1)),
+                   np.tile(d.previous_actions(ok, problem.history), (s, 1, 1)), model=model)
     predicted = np.full((s, len(rows), len(STATE_NAMES)), np.nan)
     predicted[:, start] = pred.state[:, 0].reshape(s, n, -1)
     measured = d.next_state[rows]

@@ -207,7 +207,7 @@ class Objective:
         d = problem.data
         self.problem, self.base, self.free, self.rows = problem, base, free, rows
         self.scale = free.scale()
-        self.states, self.actions = d.state[rows], d.action[rows]
+        self.actions = d.action[rows]
         self.previous = d.previous_actions(rows, problem.history)
         self.budget, self.evaluations = budget, 0
         self.norm: minimize.Norm | None = None
@@ -221,9 +221,10 @@ class Objective:
         configs = [self.free.model(self.base, z[:, j] * self.scale).sim_config(self.problem.control)
                    for j in range(k)]
         n = len(self.rows)
+        model = np.repeat(np.arange(k), n)
+        starts = self.problem.data.starts(np.tile(self.rows, k), self.problem.backend, configs, model)
         with Resimulator(self.problem.backend, configs, threads=self.problem.threads) as sim:
-            pred = sim.run(np.tile(self.states, (k, 1)), np.tile(self.actions, (k, 1)),
-                           np.tile(self.previous, (k, 1, 1)), model=np.repeat(np.arange(k), n))
+            pred = sim.run(starts, np.tile(self.actions, (k, 1)), np.tile(self.previous, (k, 1, 1)), model=model)
         self.evaluations += k
         r = self.problem.residual(pred.state[:, 0], np.tile(self.rows, k))
         r = np.where(np.isfinite(r), r, DIVERGED_RESIDUAL).reshape(k, -1).T / np.sqrt(n)

@@ -248,13 +248,13 @@ def explain_corrector(data: Measurements, model: Model, corrector_dir, cfg: Diag
     rows = np.concatenate([problem.fit_rows, problem.held_rows])
     d = problem.data
     corrected = corrector.correct(d.state[rows], d.action[rows])
-    with Resimulator(model.backend, model.sim_config(problem.control), threads=cfg.threads) as sim:
-        pred = sim.run(d.state[rows], corrected, d.previous_actions(rows, problem.history))
+    config = model.sim_config(problem.control)
+    with Resimulator(model.backend, config, threads=cfg.threads) as sim:
+        pred = sim.run(d.starts(rows, model.backend, config), corrected, d.previous_actions(rows, problem.history))
     outcome = pred.state[:, 0]
     unpredicted = np.isnan(outcome).all(0)  # contacts: keep the measured readings
     outcome[:, unpredicted] = d.next_state[rows][:, unpredicted]
     next_state = d.next_state.copy()
     next_state[rows] = outcome
-    synthetic = Measurements(d.state, d.action, next_state, d.effort, d.episode, d.frame, d.control, d.info,
-                             f"corrections of {corrector_dir} on {data.description}", d.missing)
+    synthetic = replace(d, next_state=next_state, description=f"corrections of {corrector_dir} on {data.description}")
     return diagnose(synthetic, model, cfg, progress=progress, check_data=False)

@@ -93,7 +93,8 @@ class Problem:
         if corrector is not None and horizon == 1:
             actions[:, 0] = corrector.correct(d.state[rows], actions[:, 0])
         with Resimulator(self.backend, configs, threads=self.threads) as sim:
-            pred = sim.run(d.state[rows], actions, d.previous_actions(rows, self.history), model=model_of_row)
+            pred = sim.run(d.starts(rows, self.backend, configs, model_of_row), actions,
+                           d.previous_actions(rows, self.history), model=model_of_row)
         return pred.state[:, -1]
 
     def measured(self, rows: np.ndarray, horizon: int = 1) -> np.ndarray:
