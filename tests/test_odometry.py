@@ -136,6 +136,12 @@ def test_without_motion_capture_a_softer_ground_is_named_and_each_model_starts_a
     deeper = standing_sink("mujoco", soft.params) - standing_sink("mujoco")
     assert 0.005 < deeper < 0.01 and np.allclose(np.delete(lower, z, axis=1), 0.0), deeper
     assert np.allclose(lower[:, z], deeper * blind.height.share) and np.all(lower[:, z] >= deeper - 1e-12)
+    assert np.array_equal(blind.starts(rows, "mujoco", data.control), blind.state)  # the nominal model: as estimated
+    # a model reading the joints with offsets starts on the feet its true angles put lowest
+    offsets = replace(data.control, params=ModelParams(encoder_offset=0.05))
+    true = blind.state.copy()
+    true[:, SLICES["joint_pos"]] -= 0.05
+    assert np.allclose(blind.starts(rows, "mujoco", offsets)[:, z], Odometry().estimate(true, standing_sink("mujoco"))[0])
     d = diagnose(data, Model.parse("mujoco"), FAST, add=["ground_softness"])
     assert d.ranking[0].name == "ground_softness" and d.verdict == "effect", (d.ranking[0].name, d.reason)
     assert close(d.added[0].fit.values["timeconst"], 0.05, rel=0.25), d.added[0].fit.values

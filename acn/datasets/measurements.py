@@ -75,16 +75,14 @@ class Measurements:
     def starts(self, rows: np.ndarray, backend: str, configs: SimConfig | list[SimConfig],
                model: np.ndarray | None = None) -> np.ndarray:
         """States ``rows`` as a simulator of ``backend`` built from ``configs[model[i]]`` (``model``
-        default all 0) starts from them: a copy, where the trunk's height was estimated with the
-        feet as deep as that model's ground carries them (``EstimatedHeight``)."""
+        default all 0) starts from them: a copy, where the trunk's height was estimated, estimated
+        for that model (``EstimatedHeight.starts``: its ground's sink, its encoder offsets)."""
         states = self.state[rows]
         if self.height is None:
             return states.copy()
-        from acn.datasets.odometry import standing_sink
-
         configs = [configs] if isinstance(configs, SimConfig) else configs
-        sinks = np.array([standing_sink(backend, c.params, c.physics_dt) for c in configs])
-        return self.height.for_sink(states, rows, sinks[np.zeros(len(rows), int) if model is None else model])
+        return self.height.starts(states, rows, backend, configs,
+                                  np.zeros(len(rows), int) if model is None else np.asarray(model))
 
     def previous_actions(self, rows: np.ndarray, count: int) -> np.ndarray:
         """(len(rows), count, 12): the actions of the ``count`` steps before each row, oldest first.

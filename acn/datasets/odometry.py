@@ -19,7 +19,8 @@ slip:
   contacts would push too little and the trunk would drop: a structured one-step error). That
   depth belongs to the model, not to the log: a model with a softer ground (or a payload) sinks
   deeper, so ``EstimatedHeight`` keeps how each row's height depends on it and a diagnosis
-  lowers the start of every model it tries by that model's own sink (``EstimatedHeight.for_sink``);
+  starts every model it tries at that model's own sink (``EstimatedHeight.starts``; a model
+  with encoder offsets also on the feet its true joint angles put lowest);
 - velocity, per sample: each touching point is at rest, so the trunk's world velocity is minus
   the mean velocity those points would have with the trunk origin at rest (joint speeds and
   the trunk's angular velocity, from ``mj_comVel``);
@@ -43,7 +44,7 @@ compared with a prediction.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
@@ -194,19 +195,38 @@ def smooth_velocity(legs: np.ndarray, change: np.ndarray | None, dt: float) -> n
 @dataclass
 class EstimatedHeight:
     """How a log's estimated trunk heights (``base_pos_z`` of its states) depend on the model
-    started from them: height = height on the surface - sink * share (``Odometry.estimate``)."""
+    started from them: height = height on the surface - sink * share (``Odometry.estimate``),
+    where the surface height comes from the joint angles the model takes the readings for."""
 
     share: np.ndarray   # (N,) 4 / points carrying the robot, per row
     sink: float         # m, the standing sink the heights were estimated for
+    _odometry: Odometry | None = field(default=None, init=False, repr=False, compare=False)
 
     def subset(self, rows: np.ndarray) -> "EstimatedHeight":
         return EstimatedHeight(self.share[rows], self.sink)
 
-    def for_sink(self, states: np.ndarray, rows: np.ndarray, sink: np.ndarray | float) -> np.ndarray:
-        """A copy of ``states`` (rows ``rows`` of the log) started ``sink`` m deep instead (per row
-        or one value): the start of a model whose feet sink that deep standing."""
+    def starts(self, states: np.ndarray, rows: np.ndarray, backend: str, configs: list, model: np.ndarray) -> np.ndarray:
+        """A copy of ``states`` (rows ``rows`` of the log) with each row's height re-estimated for
+        the model ``configs[model[i]]`` (``SimConfig``s of ``backend``) that starts from it: the
+        feet as deep as that model's ground and weight sink them standing (``standing_sink``),
+        and, where the model reads the joints with ``encoder_offset``, on the feet that its true
+        joint angles (reading - offset) put lowest."""
         out = states.copy()
-        out[:, SLICES["base_pos"].start + 2] -= (np.asarray(sink) - self.sink) * self.share[rows]
+        z, q = SLICES["base_pos"].start + 2, SLICES["joint_pos"]
+        for m, config in enumerate(configs):
+            sel = np.flatnonzero(model == m)
+            if not len(sel):
+                continue
+            sink = standing_sink(backend, config.params, config.physics_dt)
+            offset = config.params.encoder_offset
+            if np.any(offset != 0.0):
+                true = states[sel].copy()
+                true[:, q] -= offset
+                if self._odometry is None:
+                    self._odometry = Odometry()
+                out[sel, z] = self._odometry.estimate(true, sink)[0]
+            else:
+                out[sel, z] -= (sink - self.sink) * self.share[rows[sel]]
         return out
 
 
