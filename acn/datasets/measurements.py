@@ -188,7 +188,7 @@ def fill_derived(m: Measurements, backend: str | None = None) -> tuple[Measureme
     if no_position:
         from acn.datasets.odometry import fill_trunk, standing_sink
 
-        sink = standing_sink(backend) if backend else 0.0
+        sink = standing_sink(backend, physics_dt=m.control.physics_dt) if backend else 0.0
         state, next_state, estimated, height = fill_trunk(state, next_state, linked, dt, m.missing, sink)
         derived = derived + estimated
     out = Measurements(state, m.action, next_state, m.effort, m.episode, m.frame, m.control, m.info,
