@@ -20,7 +20,8 @@ slip:
   depth belongs to the model, not to the log: a model with a softer ground (or a payload) sinks
   deeper, so ``EstimatedHeight`` keeps how each row's height depends on it and a diagnosis
   starts every model it tries at that model's own sink (``EstimatedHeight.starts``; a model
-  with encoder offsets also on the feet its true joint angles put lowest);
+  with encoder offsets on the feet its true joint angles put lowest, one reading the trunk in
+  another frame posed by the orientation that frame gives);
 - velocity, per sample: each touching point is at rest, so the trunk's world velocity is minus
   the mean velocity those points would have with the trunk origin at rest (joint speeds and
   the trunk's angular velocity, from ``mj_comVel``);
@@ -208,25 +209,34 @@ class EstimatedHeight:
     def starts(self, states: np.ndarray, rows: np.ndarray, backend: str, configs: list, model: np.ndarray) -> np.ndarray:
         """A copy of ``states`` (rows ``rows`` of the log) with each row's height re-estimated for
         the model ``configs[model[i]]`` (``SimConfig``s of ``backend``) that starts from it: the
-        feet as deep as that model's ground and weight sink them standing (``standing_sink``),
-        and, where the model reads the joints with ``encoder_offset``, on the feet that its true
-        joint angles (reading - offset) put lowest."""
+        feet as deep as that model's ground and weight sink them standing (``standing_sink``); a
+        model that reads the joints with ``encoder_offset`` on the feet its true angles (reading -
+        offset) put lowest; a model that reads the trunk in another frame (``base_frame_offset``)
+        posed by the trunk's orientation that frame gives, with the estimated trunk position and
+        velocity (those of the trunk link) read in that frame, so that the model starts its trunk
+        link where the odometry put it (a frame's position offset cannot show without a measured
+        position: it is left unidentified, not fitted to 0)."""
+        from acn.toolkit import frames
+
         out = states.copy()
-        z, q = SLICES["base_pos"].start + 2, SLICES["joint_pos"]
+        z, q, v = SLICES["base_pos"].start + 2, SLICES["joint_pos"], SLICES["base_linvel"]
         for m, config in enumerate(configs):
             sel = np.flatnonzero(model == m)
             if not len(sel):
                 continue
             sink = standing_sink(backend, config.params, config.physics_dt)
-            offset = config.params.encoder_offset
-            if np.any(offset != 0.0):
-                true = states[sel].copy()
-                true[:, q] -= offset
-                if self._odometry is None:
-                    self._odometry = Odometry()
-                out[sel, z] = self._odometry.estimate(true, sink)[0]
-            else:
+            offset, frame = config.params.encoder_offset, config.params.base_frame_offset
+            if not (np.any(offset != 0.0) or np.any(frame != 0.0)):
                 out[sel, z] -= (sink - self.sink) * self.share[rows[sel]]
+                continue
+            trunk = frames.state_in_trunk(states[sel], frame)   # orientation and gyro of the trunk link
+            trunk[:, v] = states[sel, v]                        # the estimates are the link's already
+            trunk[:, q] -= offset
+            if self._odometry is None:
+                self._odometry = Odometry()
+            trunk[:, z] = self._odometry.estimate(trunk, sink)[0]
+            trunk[:, q] += offset                               # the model reads the joints with its offsets
+            out[sel] = frames.state_in_frame(trunk, frame)
         return out
 
 
