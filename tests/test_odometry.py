@@ -10,6 +10,7 @@ from robot_log import LogSpec, write_log
 from acn.datasets.importer import ImportConfig, import_log
 from acn.datasets.measurements import fill_derived, load_measurements
 from acn.datasets.odometry import Odometry, standing_sink
+from acn.toolkit import frames
 from acn.toolkit.state import GROUPS, SLICES
 
 NO_MOCAP = tuple(GROUPS["base_pos"] + GROUPS["base_linvel"])
@@ -142,6 +143,11 @@ def test_without_motion_capture_a_softer_ground_is_named_and_each_model_starts_a
     true = blind.state.copy()
     true[:, SLICES["joint_pos"]] -= 0.05
     assert np.allclose(blind.starts(rows, "mujoco", offsets)[:, z], Odometry().estimate(true, standing_sink("mujoco"))[0])
+    # a model reading the trunk in a frame 6 cm above the link starts its link where the odometry put it
+    frame = np.array([0.0, 0.0, 0.06, 0.0, 0.0, 0.0])
+    framed = blind.starts(rows, "mujoco", replace(data.control, params=ModelParams(base_frame_offset=frame)))
+    link = frames.state_in_trunk(framed, frame)
+    assert np.allclose(link, blind.state) and not np.allclose(framed[:, z], blind.state[:, z])
     d = diagnose(data, Model.parse("mujoco"), FAST, add=["ground_softness"])
     assert d.ranking[0].name == "ground_softness" and d.verdict == "effect", (d.ranking[0].name, d.reason)
     assert close(d.added[0].fit.values["timeconst"], 0.05, rel=0.25), d.added[0].fit.values

@@ -219,7 +219,8 @@ class EstimatedHeight:
         from acn.toolkit import frames
 
         out = states.copy()
-        z, q, v = SLICES["base_pos"].start + 2, SLICES["joint_pos"], SLICES["base_linvel"]
+        pos, v, q = SLICES["base_pos"], SLICES["base_linvel"], SLICES["joint_pos"]
+        z = pos.start + 2
         for m, config in enumerate(configs):
             sel = np.flatnonzero(model == m)
             if not len(sel):
@@ -230,7 +231,7 @@ class EstimatedHeight:
                 out[sel, z] -= (sink - self.sink) * self.share[rows[sel]]
                 continue
             trunk = frames.state_in_trunk(states[sel], frame)   # orientation and gyro of the trunk link
-            trunk[:, v] = states[sel, v]                        # the estimates are the link's already
+            trunk[:, pos], trunk[:, v] = states[sel, pos], states[sel, v]   # the estimates are the link's
             trunk[:, q] -= offset
             if self._odometry is None:
                 self._odometry = Odometry()
