@@ -112,12 +112,13 @@ def _soft_ground(spec):
         g.solref = [0.05, 1.0]
 
 
-def test_without_motion_capture_a_softer_ground_is_named_and_each_model_starts_at_its_own_sink(tmp_path):
+def test_without_motion_capture_each_model_starts_from_its_own_estimate_and_a_soft_ground_is_named(tmp_path):
     """The estimated height puts the feet as deep as the started model's ground carries them.
     On a log whose ground is soft (the feet sink 8-11 mm, nominal MuJoCo 1.3 mm), a model with
     that ground starts lower by the difference, and the diagnosis ranks ground_softness first
     and fits it. Before, every model started at the nominal sink: the soft model's trunk fell
-    through its first step, and the diagnosis named ground_friction instead."""
+    through its first step, and the diagnosis ranked base_frame_offset first (verdict
+    unexplained). Models with encoder offsets or another trunk frame get their own estimates too."""
     from dataclasses import replace
 
     from test_diagnose import FAST, close
