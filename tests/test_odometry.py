@@ -143,12 +143,24 @@ def test_without_motion_capture_each_model_starts_from_its_own_estimate_and_a_so
     offsets = replace(data.control, params=ModelParams(encoder_offset=0.05))
     true = blind.state.copy()
     true[:, SLICES["joint_pos"]] -= 0.05
-    assert np.allclose(blind.starts(rows, "mujoco", offsets)[:, z], Odometry().estimate(true, standing_sink("mujoco"))[0])
+    estimate = Odometry().estimate(true, standing_sink("mujoco"))[0]
+    assert np.allclose(blind.starts(rows, "mujoco", offsets)[:, z], estimate)
     # a model reading the trunk in a frame 6 cm above the link starts its link where the odometry put it
     frame = np.array([0.0, 0.0, 0.06, 0.0, 0.0, 0.0])
     framed = blind.starts(rows, "mujoco", replace(data.control, params=ModelParams(base_frame_offset=frame)))
     link = frames.state_in_trunk(framed, frame)
     assert np.allclose(link, blind.state) and not np.allclose(framed[:, z], blind.state[:, z])
+    # a measured velocity (a reading in the frame, not an estimate of the link's) is converted as usual
+    from acn.datasets.odometry import EstimatedHeight
+
+    tilted = np.array([0.0, 0.0, 0.06, 0.05, -0.04, 0.0])
+    position_only = EstimatedHeight(blind.height.share, blind.height.sink, tuple(range(3)))
+    cfg = replace(data.control, params=ModelParams(base_frame_offset=tilted))
+    v = SLICES["base_linvel"]
+    started = position_only.starts(blind.state, rows, "mujoco", [cfg], np.zeros(len(rows), int))
+    started = frames.state_in_trunk(started, tilted)
+    assert np.allclose(started[:, v], frames.state_in_trunk(blind.state, tilted)[:, v])
+    assert np.allclose(started[:, 0:2], blind.state[:, 0:2]) and not np.allclose(started[:, v], blind.state[:, v])
     d = diagnose(data, Model.parse("mujoco"), FAST, add=["ground_softness"])
     assert d.ranking[0].name == "ground_softness" and d.verdict == "effect", (d.ranking[0].name, d.reason)
     assert close(d.added[0].fit.values["timeconst"], 0.05, rel=0.25), d.added[0].fit.values

@@ -50,9 +50,9 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from acn.toolkit.robot import GRAVITY
+from acn.toolkit.robot import GRAVITY, ModelParams
 from acn.toolkit.rotations import rpy_to_matrices, rpy_to_quat
-from acn.toolkit.state import FOOT_NAMES, GROUPS, SLICES
+from acn.toolkit.state import FOOT_NAMES, GROUPS, SLICES, STATE_NAMES
 
 ACCELEROMETER_NOISE = 0.2  # m/s^2, std of one accelerometer reading (mean over a control step)
 LEG_NOISE = 0.1            # m/s, the legs' velocity error the smoother starts from (then estimated)
@@ -201,12 +201,14 @@ class EstimatedHeight:
 
     share: np.ndarray   # (N,) 4 / points carrying the robot, per row
     sink: float         # m, the standing sink the heights were estimated for
+    columns: tuple[int, ...] = ()   # the state's trunk position and velocity columns estimated (the link's)
     _odometry: Odometry | None = field(default=None, init=False, repr=False, compare=False)
 
     def subset(self, rows: np.ndarray) -> "EstimatedHeight":
-        return EstimatedHeight(self.share[rows], self.sink)
+        return EstimatedHeight(self.share[rows], self.sink, self.columns)
 
-    def starts(self, states: np.ndarray, rows: np.ndarray, backend: str, configs: list, model: np.ndarray) -> np.ndarray:
+    def starts(self, states: np.ndarray, rows: np.ndarray, backend: str, configs: list,
+               model: np.ndarray) -> np.ndarray:
         """A copy of ``states`` (rows ``rows`` of the log) with each row's height re-estimated for
         the model ``configs[model[i]]`` (``SimConfig``s of ``backend``) that starts from it: the
         feet as deep as that model's ground and weight sink them standing (``standing_sink``); a
@@ -219,8 +221,7 @@ class EstimatedHeight:
         from acn.toolkit import frames
 
         out = states.copy()
-        pos, v, q = SLICES["base_pos"], SLICES["base_linvel"], SLICES["joint_pos"]
-        z = pos.start + 2
+        z, q, estimated = SLICES["base_pos"].start + 2, SLICES["joint_pos"], list(self.columns)
         for m, config in enumerate(configs):
             sel = np.flatnonzero(model == m)
             if not len(sel):
@@ -231,7 +232,7 @@ class EstimatedHeight:
                 out[sel, z] -= (sink - self.sink) * self.share[rows[sel]]
                 continue
             trunk = frames.state_in_trunk(states[sel], frame)   # orientation and gyro of the trunk link
-            trunk[:, pos], trunk[:, v] = states[sel, pos], states[sel, v]   # the estimates are the link's
+            trunk[:, estimated] = states[np.ix_(sel, estimated)]   # the estimates are the link's already
             trunk[:, q] -= offset
             if self._odometry is None:
                 self._odometry = Odometry()
@@ -247,23 +248,20 @@ def standing_sink(backend: str, params=None, physics_dt: float = 0.001) -> float
     8 mm in both), after 1 s of holding the stance. ``params`` (``ModelParams``, default nominal):
     only what sets the depth counts, the ground and the weight it carries (``ground_timeconst``,
     ``payload_mass``, ``payload_com``); the control law's effects do not change it."""
-    if params is None:
-        return _standing_sink(backend, physics_dt)
+    params = params or ModelParams()
     com = tuple(float(c) for c in params.payload_com)
     return _standing_sink(backend, physics_dt, params.ground_timeconst, params.payload_mass, com)
 
 
 @functools.lru_cache(maxsize=4096)
-def _standing_sink(backend: str, physics_dt: float, timeconst: float | None = None, payload: float = 0.0,
-                   com: tuple[float, ...] = (0.0, 0.0, 0.0)) -> float:
+def _standing_sink(backend: str, physics_dt: float, timeconst: float, payload: float,
+                   com: tuple[float, ...]) -> float:
     from acn.toolkit.backends import SimConfig, make_backend
     from acn.toolkit.backends.base import default_state
     from acn.toolkit.kinematics import FOOT_RADIUS, RobotKinematics
-    from acn.toolkit.robot import STANCE, ModelParams
+    from acn.toolkit.robot import STANCE
 
-    params = ModelParams(payload_mass=payload, payload_com=np.array(com))
-    if timeconst is not None:
-        params.ground_timeconst = timeconst
+    params = ModelParams(payload_mass=payload, payload_com=np.array(com), ground_timeconst=timeconst)
     config = SimConfig(physics_dt=physics_dt, substeps=max(1, int(round(0.02 / physics_dt))), params=params)
     with make_backend(backend, config) as sim:
         sim.reset(default_state())
@@ -297,7 +295,8 @@ def fill_trunk(state: np.ndarray, next_state: np.ndarray, linked: np.ndarray, dt
         h_next[ends], v_next[ends], _ = odometry.estimate(next_state[ends], sink)
         if "base_pos_z" in missing:
             state[:, z], next_state[:, z] = h_now, h_next
-            height = EstimatedHeight(share, sink)
+            trunk_channels = GROUPS["base_pos"] + GROUPS["base_linvel"]
+            height = EstimatedHeight(share, sink, tuple(STATE_NAMES.index(n) for n in trunk_channels if n in missing))
         if velocity:
             starts = np.flatnonzero(~linked)
             for a, b in zip(starts, np.r_[starts[1:], len(state)] - 1):   # one run of consecutive rows
