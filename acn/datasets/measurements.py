@@ -76,7 +76,7 @@ class Measurements:
                model: np.ndarray | None = None) -> np.ndarray:
         """States ``rows`` as a simulator of ``backend`` built from ``configs[model[i]]`` (``model``
         default all 0) starts from them: a copy, where the trunk's height was estimated, estimated
-        for that model (``EstimatedHeight.starts``: its ground's sink, its encoder offsets)."""
+        for that model (``EstimatedHeight.starts``: its ground's sink, encoder offsets, trunk frame)."""
         states = self.state[rows]
         if self.height is None:
             return states.copy()

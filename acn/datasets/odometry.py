@@ -287,7 +287,6 @@ def fill_trunk(state: np.ndarray, next_state: np.ndarray, linked: np.ndarray, dt
     cols, acc = [SLICES["base_linvel"].start + i for i in axes], SLICES["imu_acc"]
     gravity = np.array([0.0, 0.0, -GRAVITY])
     has_acc = not np.isnan(state[:, acc]).all()
-    height = None
     if velocity or "base_pos_z" in missing:
         h_now, v_now, share = odometry.estimate(state, sink)
         ends = np.flatnonzero(~np.r_[linked[1:], False])     # rows whose next state no row starts from
@@ -295,8 +294,6 @@ def fill_trunk(state: np.ndarray, next_state: np.ndarray, linked: np.ndarray, dt
         h_next[ends], v_next[ends], _ = odometry.estimate(next_state[ends], sink)
         if "base_pos_z" in missing:
             state[:, z], next_state[:, z] = h_now, h_next
-            trunk_channels = GROUPS["base_pos"] + GROUPS["base_linvel"]
-            height = EstimatedHeight(share, sink, tuple(STATE_NAMES.index(n) for n in trunk_channels if n in missing))
         if velocity:
             starts = np.flatnonzero(~linked)
             for a, b in zip(starts, np.r_[starts[1:], len(state)] - 1):   # one run of consecutive rows
@@ -321,4 +318,8 @@ def fill_trunk(state: np.ndarray, next_state: np.ndarray, linked: np.ndarray, dt
             state[:, SLICES["base_pos"].start + k] = where[:, k]
             next_state[:, SLICES["base_pos"].start + k] = where[:, k] + step[:, k]
     filled = set(velocity) | set(planar) | ({"base_pos_z"} & set(missing))
-    return state, next_state, [n for n in GROUPS["base_pos"] + GROUPS["base_linvel"] if n in filled], height
+    names = [n for n in GROUPS["base_pos"] + GROUPS["base_linvel"] if n in filled]
+    height = None
+    if "base_pos_z" in filled:
+        height = EstimatedHeight(share, sink, tuple(STATE_NAMES.index(n) for n in names))
+    return state, next_state, names, height
