@@ -508,6 +508,32 @@ def test_a_richer_effect_that_wins_only_the_one_step_gives_way_to_a_simpler_one(
     assert prefer_simpler([gains, damping], horizon)[0] is gains       # the gains predict 25 steps better too
 
 
+def test_what_a_too_small_effect_removes_counts_as_noise():
+    """A significant candidate fitted below 3/4 of the smallest realistic magnitude (a 1 mm trunk
+    frame: the open-loop pace log whose robot lies on its back, where the noise in the measured
+    height decides how deep the trunk starts in the floor) raises the noise floor by what it removes,
+    beyond what the best plausible candidate removes; a fit beyond the largest magnitude does not
+    (it stands in for another effect: springs fitted as damping at the bound)."""
+    from acn.models.diagnose.pipeline import noise_fitted
+    from acn.models.diagnose.rank import implausible, too_small
+
+    rng = np.random.default_rng(2)
+    residual = rng.normal(0.0, 1.0, (600, 4))
+    before = np.mean(residual ** 2, axis=0)
+    floor = np.full(4, 0.6)
+    frame = ranked_candidate(rng, "base_frame_offset", 0.001, 0.9, None)
+    springs = ranked_candidate(rng, "joint_damping", 5.0, 0.9, None)
+    damping = ranked_candidate(rng, "joint_damping", 0.5, 0.95, 0.4)
+    assert too_small(frame.fit) and implausible(springs.fit) and not too_small(springs.fit)
+    removed = lambda c: np.clip(before - np.mean(c.judgement.residual_after ** 2, axis=0), 0, None)  # noqa: E731
+    np.testing.assert_allclose(noise_fitted(floor, residual, [frame]), floor + removed(frame))
+    np.testing.assert_array_equal(noise_fitted(floor, residual, [springs]), floor)
+    np.testing.assert_allclose(noise_fitted(floor, residual, [damping, frame]),
+                               floor + np.clip(removed(frame) - removed(damping), 0.0, None))
+    frame.judgement.significant = False  # what an insignificant fit removes is not counted
+    np.testing.assert_array_equal(noise_fitted(floor, residual, [frame]), floor)
+
+
 def test_a_small_effect_added_under_sensor_noise_is_named_in_the_verdict():
     """--auto added an effect to a model whose one-step error is mostly noise (< 15 % above the
     floor): the verdict names it (before, it said "none" beside the added effect); with more
