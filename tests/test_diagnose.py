@@ -512,8 +512,8 @@ def test_what_a_too_small_effect_removes_counts_as_noise():
     """A significant candidate fitted below 3/4 of the smallest realistic magnitude (a 1 mm trunk
     frame: the open-loop pace log whose robot lies on its back, where the noise in the measured
     height decides how deep the trunk starts in the floor) raises the noise floor by what it removes,
-    beyond what the best plausible candidate removes; a fit beyond the largest magnitude does not
-    (it stands in for another effect: springs fitted as damping at the bound)."""
+    beyond what the best plausible candidate removes; a fit at a bound or one the measurements
+    contradict does not (it stands in for another effect: springs fitted as damping)."""
     from acn.models.diagnose.pipeline import noise_fitted
     from acn.models.diagnose.rank import implausible, too_small
 
@@ -531,6 +531,8 @@ def test_what_a_too_small_effect_removes_counts_as_noise():
     np.testing.assert_allclose(noise_fitted(floor, residual, [damping, frame]),
                                floor + np.clip(removed(frame) - removed(damping), 0.0, None))
     frame.judgement.significant = False  # what an insignificant fit removes is not counted
+    np.testing.assert_array_equal(noise_fitted(floor, residual, [frame]), floor)
+    frame.judgement.significant, frame.fit.contradicted = True, "lifts the stance feet"  # stands in for another
     np.testing.assert_array_equal(noise_fitted(floor, residual, [frame]), floor)
 
 

@@ -37,7 +37,7 @@ from acn.models.diagnose.add import Added, Chain, add_effect, auto, longest_remo
 from acn.models.diagnose.compare import Comparison, compare, floor_of
 from acn.models.diagnose.problem import DiagnoseConfig, Problem, prepare
 from acn.models.diagnose.rank import (STRUCTURED_SHARE, Candidate, doubt, explained_share, implausible,
-                                      one_step_only, rank, too_small)
+                                      fits_noise_by_size, one_step_only, rank)
 from acn.models.diagnose.where import breakdown
 from acn.toolkit.effects import Model, get_effect
 
@@ -155,16 +155,17 @@ def findings_note(findings: list[checks.Finding], named: tuple[str, ...]) -> str
 
 def noise_fitted(floor: np.ndarray, residual: np.ndarray, ranking: list[Candidate]) -> np.ndarray:
     """The floor (C,) raised by what a candidate that fits the noise removes per channel: one
-    that improves the one step only (``rank.one_step_only``), or a significant one whose value is
-    below 3/4 of the smallest realistic magnitude (``rank.too_small``: a 2 mm trunk frame where the
-    trunk lies on the floor and the noise in its measured height decides how deep it starts).
+    that improves the one step only (``rank.one_step_only``), or a significant one set aside only
+    for a value below 3/4 of the smallest realistic magnitude (``rank.fits_noise_by_size``: a 2 mm
+    trunk frame where the trunk lies on the floor and the noise in its measured height decides
+    how deep it starts).
     That part of the error is caused by the sensor noise in the start states too, though the
     library regressions predict it (it depends on the true state).
 
     Only what it removes beyond the best candidate that can be the explanation (significant,
     ``rank.doubt`` empty) counts: a dozen encoder offsets also soak up a real error of the start
     states (a trunk measured in another frame), which is not noise."""
-    fits = [c for c in ranking if one_step_only(c) or (c.judgement.significant and too_small(c.fit))]
+    fits = [c for c in ranking if one_step_only(c) or fits_noise_by_size(c)]
     if not fits:
         return floor
     before = np.mean(residual ** 2, axis=0)

@@ -52,6 +52,7 @@ PARSIMONY_Z = 2.0            # a richer candidate must beat a simpler one by thi
 PARSIMONY_SHARE = 0.9        # and the simpler one remove less than this share of what it removes
 LONGER_MARGIN = 0.05         # of the longest-horizon error: a candidate tied at one step must remove this much more
 READING_TOLERANCE = 0.05     # of the longest-horizon error: what a reading-only effect may add to it (fits_noise)
+TOO_SMALL = "fits a value below 3/4 of the smallest realistic magnitude"  # implausible's reason for too_small
 
 
 @dataclass
@@ -144,7 +145,7 @@ def implausible(fit: EffectFit) -> str:
     if large:
         return f"needs {', '.join(large)} beyond {LARGEST_FACTOR:g}x the largest realistic magnitude"
     if too_small(fit):
-        return "fits a value below 3/4 of the smallest realistic magnitude"
+        return TOO_SMALL
     return ""
 
 
@@ -185,6 +186,14 @@ def one_step_only(c: Candidate) -> str:
 def doubt(c: Candidate) -> str:
     """Why a candidate cannot be the explanation ("" if it can): ``implausible`` or ``one_step_only``."""
     return implausible(c.fit) or one_step_only(c)
+
+
+def fits_noise_by_size(c: Candidate) -> bool:
+    """Whether ``c`` is significant and set aside only for its size (``implausible`` is
+    ``TOO_SMALL``: not contradicted, not at a bound, not too large): it fits noise or another
+    effect's leftovers, and ``pipeline.noise_fitted`` counts what it removes as noise."""
+    return c.judgement.significant and implausible(c.fit) == TOO_SMALL
+
 
 
 def open_loop_gain(before: np.ndarray, after: np.ndarray) -> float:
