@@ -21,7 +21,8 @@ since a model compared with inconsistent data explains the inconsistency as phys
 
 The noise floor is what ridge regressions on a library of state and action terms cannot
 predict (``noise``) of the model's held-out residual, or of what the best candidates leave,
-whichever is lower: after the right effect only noise is left.
+whichever is lower: after the right effect only noise is left. It is raised by what candidates
+that fit the noise remove (``noise_fitted``).
 """
 
 from __future__ import annotations
