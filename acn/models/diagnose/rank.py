@@ -195,7 +195,6 @@ def fits_noise_by_size(c: Candidate) -> bool:
     return c.judgement.significant and implausible(c.fit) == TOO_SMALL
 
 
-
 def open_loop_gain(before: np.ndarray, after: np.ndarray) -> float:
     """Share of the open-loop MSE of residuals ``before`` (N, C) that ``after`` removes, on the
     rows ``before`` predicted (a prediction that blew up after counts as error 10, as in ``judge``)."""
