@@ -111,8 +111,10 @@ class Odometry:
         (N, 43) whose ``base_rpy``, ``joint_pos``, ``joint_vel`` and ``base_angvel`` are finite;
         contact flags are used where present (module docstring). ``sink``: how deep the feet of
         the model that will start from these states sink into its ground, standing on four
-        (``standing_sink``), m; on fewer points each carries more and sinks deeper in proportion:
-        height = height on the surface - sink * share, share = 4 / (points carrying, at least 1)."""
+        (``standing_sink``), m; on fewer points each carries more and sinks deeper in proportion,
+        and only feet sink (a trunk resting on the floor sinks 0.06 mm in MuJoCo; with a foot's sink
+        per point it started 5 mm deep): height = height on the surface - sink * share, share = 4 x
+        (feet carrying) / (points carrying, at least 1)^2, 4 / feet where only feet carry it."""
         m, d = self.model, self.data
         n, geoms = len(states), self.geoms
         x, y, z, w = rpy_to_quat(states[:, SLICES["base_rpy"]].T)
@@ -145,7 +147,8 @@ class Odometry:
         spin, linear = cvel[:, bodies, :3], cvel[:, bodies, 3:]
         moving = linear + np.cross(spin, points - com[:, None])                          # (N, G, 3) world
         total = weight.sum(axis=1)
-        share = len(FOOT_NAMES) / np.maximum(total, 1.0)
+        feet = np.sum(weight * self._is_foot, axis=1)
+        share = len(FOOT_NAMES) * feet / np.maximum(total, 1.0) ** 2   # only feet sink (see estimate's docstring)
         height = -np.sum(weight * low, axis=1) / total - sink * share
         world = -np.sum(weight[..., None] * moving, axis=1) / total[:, None]
         return height, np.einsum("nji,nj->ni", trunk.reshape(n, 3, 3), world), share
@@ -199,7 +202,7 @@ class EstimatedHeight:
     started from them: height = height on the surface - sink * share (``Odometry.estimate``),
     where the surface height comes from the joint angles the model takes the readings for."""
 
-    share: np.ndarray   # (N,) 4 / points carrying the robot, per row
+    share: np.ndarray   # (N,) 4 x feet / points^2 carrying the robot, per row (``Odometry.estimate``)
     sink: float         # m, the standing sink the heights were estimated for
     columns: tuple[int, ...] = ()   # the state's trunk position and velocity columns estimated (the link's)
     _odometry: Odometry | None = field(default=None, init=False, repr=False, compare=False)
