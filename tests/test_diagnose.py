@@ -548,6 +548,16 @@ def test_what_a_too_small_effect_removes_counts_as_noise():
     np.testing.assert_array_equal(noise_fitted(floor, residual, [springs]), floor)
     np.testing.assert_allclose(noise_fitted(floor, residual, [damping, frame]),
                                floor + np.clip(removed(frame) - removed(damping), 0.0, None))
+    # Of two noise fits, the larger excess over the plausible candidate counts, not the larger removal:
+    # this frame removes more in all (channels 0-1, which damping removes too), the other only in 2-3.
+    wide = ranked_candidate(rng, "base_frame_offset", 0.001, 1.0, None)
+    wide.judgement.residual_after = residual * np.array([0.6, 0.6, 0.93, 0.93])
+    narrow = ranked_candidate(rng, "base_frame_offset", 0.001, 1.0, None)
+    narrow.judgement.residual_after = residual * np.array([1.0, 1.0, 0.8, 0.8])
+    damping.judgement.residual_after = residual * np.array([0.6, 0.6, 1.0, 1.0])
+    assert np.sum(removed(wide)) > np.sum(removed(narrow))
+    for fits in ([wide, narrow], [narrow, wide]):
+        np.testing.assert_allclose(noise_fitted(floor, residual, [damping, *fits]), floor + removed(narrow))
     frame.judgement.significant = False  # what an insignificant fit removes is not counted
     np.testing.assert_array_equal(noise_fitted(floor, residual, [frame]), floor)
     frame.judgement.significant, frame.fit.contradicted = True, "lifts the stance feet"  # stands in for another

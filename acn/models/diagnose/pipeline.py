@@ -165,7 +165,9 @@ def noise_fitted(floor: np.ndarray, residual: np.ndarray, ranking: list[Candidat
 
     Only what it removes beyond the best candidate that can be the explanation (significant,
     ``rank.doubt`` empty) counts: a dozen encoder offsets also soak up a real error of the start
-    states (a trunk measured in another frame), which is not noise."""
+    states (a trunk measured in another frame), which is not noise. Of the candidates that fit
+    noise, the one with the largest such excess sets the floor, so one more of them never
+    lowers it."""
     fits = [c for c in ranking if one_step_only(c) or fits_noise_by_size(c)]
     if not fits:
         return floor
@@ -174,10 +176,9 @@ def noise_fitted(floor: np.ndarray, residual: np.ndarray, ranking: list[Candidat
     def removed(c: Candidate) -> np.ndarray:
         return np.clip(before - np.mean(c.judgement.residual_after ** 2, axis=0), 0.0, None)
 
-    noise = max((removed(c) for c in fits), key=np.sum)
     real = [removed(c) for c in ranking if c.judgement.significant and not doubt(c)]
-    if real:
-        noise = np.clip(noise - max(real, key=np.sum), 0.0, None)
+    best = max(real, key=np.sum) if real else 0.0
+    noise = max((np.clip(removed(c) - best, 0.0, None) for c in fits), key=np.sum)
     return np.minimum(before, floor + noise)
 
 
