@@ -68,6 +68,24 @@ def test_a_fallen_robot_rests_on_its_trunk(tmp_path):
     assert np.all(share == 0.0) and abs(below) < 0.001, below
 
 
+def test_the_feet_sink_by_the_load_the_accelerometer_measures(tmp_path):
+    """The feet sink in proportion to the ground's vertical force, which the accelerometer gives
+    (a foot pushing off carries less than a standing share, a landing more): on a noise-free log
+    of the benchmark's random controller the estimated height is closer to the true one than with
+    the standing load everywhere (the accelerometer left out: 0.78 mm median error, 0.37 with it)."""
+    write_log(tmp_path / "log.csv", LogSpec(controller="sines", seconds=6.0, episodes=1, seed=3))
+    path, _ = import_log(tmp_path / "log.csv", tmp_path / "log", ImportConfig(50, 60.0, 1.5, 33.5))
+    states = load_measurements(path).state
+    states = states[states[:, SLICES["contact"]].sum(axis=1) >= 2]
+    assert len(states) >= 200
+    blind = states.copy()
+    blind[:, SLICES["imu_acc"]] = np.nan
+    true = states[:, SLICES["base_pos"].start + 2]
+    err = {name: np.median(np.abs(Odometry().estimate(s, standing_sink("mujoco"))[0] - true))
+           for name, s in (("measured load", states), ("standing load", blind))}
+    assert err["measured load"] < 0.6 * err["standing load"] and err["measured load"] < 0.0005, err
+
+
 @pytest.fixture(scope="module")
 def no_mocap_log(tmp_path_factory):
     """A noisy log from code outside acn-collect with 15 ms latency, without the trunk's position
@@ -101,7 +119,7 @@ def test_a_log_without_motion_capture_is_completed_and_never_compared_on_the_est
     sink = standing_sink("mujoco")
     assert 0.0005 < sink < 0.005 and standing_sink("pybullet") < 0.0002, (sink, standing_sink("pybullet"))
     lowered = blind.state[:, z] - problem.data.state[:, z]
-    assert np.all(lowered > 0) and sink - 1e-9 <= np.median(lowered[standing]) <= 4 * sink + 1e-9
+    assert np.all(lowered >= 0) and sink - 1e-9 <= np.median(lowered[standing]) <= 4 * sink + 1e-9  # 0: in flight
 
 
 def test_a_log_without_motion_capture_still_names_the_latency(no_mocap_log):
@@ -145,7 +163,7 @@ def test_without_motion_capture_each_model_starts_from_its_own_estimate_and_a_so
     z = SLICES["base_pos"].start + 2
     deeper = standing_sink("mujoco", soft.params) - standing_sink("mujoco")
     assert 0.005 < deeper < 0.01 and np.allclose(np.delete(lower, z, axis=1), 0.0), deeper
-    assert np.allclose(lower[:, z], deeper * blind.height.share) and np.all(lower[:, z] >= deeper - 1e-12)
+    assert np.allclose(lower[:, z], deeper * blind.height.share) and np.median(lower[:, z]) > deeper / 2
     assert np.array_equal(blind.starts(rows, "mujoco", data.control), blind.state)  # the nominal model: as estimated
     # a model reading the joints with offsets starts on the feet its true angles put lowest
     offsets = replace(data.control, params=ModelParams(encoder_offset=0.05))

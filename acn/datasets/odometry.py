@@ -106,6 +106,14 @@ class Odometry:
                                            self._box_centre + np.sign(down) * self._box_half)))
         return centre + np.einsum("...ij,...j->...i", rot, local)
 
+    def load(self, states: np.ndarray, trunk: np.ndarray) -> np.ndarray:
+        """(N,) the ground's vertical force on the robot in units of its weight, from the
+        accelerometer (specific force, trunk frame) turned to world axes by ``trunk`` (N, 3, 3):
+        the legs move with the trunk to first order. 1 where the accelerometer is not logged."""
+        acc = states[:, SLICES["imu_acc"]]
+        up = np.einsum("nj,nj->n", trunk[:, 2, :], acc) / np.linalg.norm(self.model.opt.gravity)
+        return np.where(np.isfinite(up), np.clip(up, 0.0, None), 1.0)
+
     def estimate(self, states: np.ndarray, sink: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(height (N,), m; trunk-frame linear velocity (N, 3), m/s; sink share (N,)) of states
         (N, 43) whose ``base_rpy``, ``joint_pos``, ``joint_vel`` and ``base_angvel`` are finite;
@@ -113,8 +121,10 @@ class Odometry:
         the model that will start from these states sink into its ground, standing on four
         (``standing_sink``), m; on fewer points each carries more and sinks deeper in proportion,
         and only feet sink (a trunk resting on the floor sinks 0.06 mm in MuJoCo; with a foot's sink
-        per point it started 5 mm deep): height = height on the surface - sink * share, share = 4 x
-        (feet carrying) / (points carrying, at least 1)^2, 4 / feet where only feet carry it."""
+        per point it started 5 mm deep), and in proportion to the load the accelerometer measures
+        (``load``; a foot pushing off carries less than a standing share, a landing more): height =
+        height on the surface - sink * share, share = load x 4 x (feet carrying) / (points carrying,
+        at least 1)^2, load x 4 / feet where only feet carry it."""
         m, d = self.model, self.data
         n, geoms = len(states), self.geoms
         x, y, z, w = rpy_to_quat(states[:, SLICES["base_rpy"]].T)
@@ -149,6 +159,7 @@ class Odometry:
         total = weight.sum(axis=1)
         feet = np.sum(weight * self._is_foot, axis=1)
         share = len(FOOT_NAMES) * feet / np.maximum(total, 1.0) ** 2   # only feet sink (see estimate's docstring)
+        share = share * self.load(states, trunk.reshape(n, 3, 3))
         height = -np.sum(weight * low, axis=1) / total - sink * share
         world = -np.sum(weight[..., None] * moving, axis=1) / total[:, None]
         return height, np.einsum("nji,nj->ni", trunk.reshape(n, 3, 3), world), share
@@ -202,7 +213,7 @@ class EstimatedHeight:
     started from them: height = height on the surface - sink * share (``Odometry.estimate``),
     where the surface height comes from the joint angles the model takes the readings for."""
 
-    share: np.ndarray   # (N,) 4 x feet / points^2 carrying the robot, per row (``Odometry.estimate``)
+    share: np.ndarray   # (N,) load x 4 x feet / points^2 carrying the robot, per row (``Odometry.estimate``)
     sink: float         # m, the standing sink the heights were estimated for
     columns: tuple[int, ...] = ()   # the state's trunk position and velocity columns estimated (the link's)
     _odometry: Odometry | None = field(default=None, init=False, repr=False, compare=False)
