@@ -68,6 +68,18 @@ def test_a_fallen_robot_rests_on_its_trunk(tmp_path):
     assert np.all(share == 0.0) and abs(below) < 0.001, below
 
 
+def test_a_flagged_foot_above_the_lowest_point_does_not_carry_the_robot(tmp_path):
+    """A falling robot's contact flag lags its foot's lift-off: posed on that foot, another point
+    started centimetres inside the ground (36-38 mm too low on this log, 11 rows over 5 mm). Flagged
+    feet further than ``STANCE_BAND`` above the lowest point are not taken (max 22 mm: rows in flight)."""
+    write_log(tmp_path / "log.csv", LogSpec(controller="pace", seconds=4.0, episodes=1, seed=5))
+    path, _ = import_log(tmp_path / "log.csv", tmp_path / "log", ImportConfig(50, 60.0, 1.5, 33.5))
+    states = load_measurements(path).state
+    states = states[states[:, SLICES["contact"]].sum(axis=1) > 0]
+    error = Odometry().estimate(states, standing_sink("mujoco"))[0] - states[:, SLICES["base_pos"].start + 2]
+    assert len(states) >= 50 and np.max(np.abs(error)) < 0.025 and np.sum(np.abs(error) > 0.005) <= 4, error
+
+
 def test_the_feet_sink_by_the_load_the_accelerometer_measures(tmp_path):
     """The feet sink in proportion to the ground's vertical force, which the accelerometer gives
     (a foot pushing off carries less than a standing share, a landing more): on a noise-free log

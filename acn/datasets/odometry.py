@@ -12,7 +12,9 @@ slip:
   other shapes by their bounding box);
 - the points that touch: the feet the log flags as touching the ground, else every point
   within ``STANCE_BAND`` of the lowest one (a trotting robot's stance feet; a fallen robot's
-  trunk corner or thigh);
+  trunk corner or thigh). A flagged foot further above the lowest point than that is not
+  taken (a flag that lags a foot's lift-off, as a falling robot's: posed on it, another point
+  would start centimetres inside the ground);
 - height: ``base_pos_z`` = minus their mean height, lowered by how deep the feet of the model
   that starts from the estimate sink into its ground (``standing_sink``: a soft contact carries
   the robot's weight a millimetre or two deep; starting it with the feet just touching, its
@@ -151,8 +153,8 @@ class Odometry:
         contact = states[:, SLICES["contact"]]
         if not np.isnan(contact).all():
             flags = np.nan_to_num(contact) > 0.5
-            flagged = self._is_foot & flags[:, self._foot_index]                       # (N, G)
-            weight = np.where(flags.any(axis=1, keepdims=True), flagged.astype(float), weight)
+            flagged = self._is_foot & flags[:, self._foot_index] & (weight > 0)        # (N, G)
+            weight = np.where(flagged.any(axis=1, keepdims=True), flagged.astype(float), weight)
         # cvel: (angular, linear) velocity at the robot's centre of mass, world axes
         spin, linear = cvel[:, bodies, :3], cvel[:, bodies, 3:]
         moving = linear + np.cross(spin, points - com[:, None])                          # (N, G, 3) world
