@@ -16,7 +16,8 @@ slip:
   taken (a flag that lags a foot's lift-off, as a falling robot's: posed on it, another point
   would start centimetres inside the ground);
 - height: ``base_pos_z`` = minus their mean height, lowered by how deep the feet of the model
-  that starts from the estimate sink into its ground (``standing_sink``: a soft contact carries
+  that starts from the estimate sink into its ground under the load the accelerometer measures
+  (``standing_sink`` x ``Odometry.load``, shared by the feet that carry: a soft contact carries
   the robot's weight a millimetre or two deep; starting it with the feet just touching, its
   contacts would push too little and the trunk would drop: a structured one-step error). That
   depth belongs to the model, not to the log: a model with a softer ground (or a payload) sinks
