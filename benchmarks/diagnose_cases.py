@@ -15,6 +15,10 @@ With ``--no-mocap``, the logs lack the trunk's position and linear velocity (no 
 an IMU and encoders only), which the diagnosis estimates by leg odometry
 (``acn.datasets.odometry``); ``--no-contacts`` leaves out the foot contact flags too.
 
+With ``--feedback G``, every log's controller adds an attitude feedback on the measured, noisy
+roll, pitch and gyro (``robot_log._level``, G its gain multiple; 1 keeps the pace gait upright):
+a closed-loop controller, whose actions carry the sensor noise of the states they follow.
+
 With ``--pairs``, logs with TWO hidden effects instead (``--auto``), one line each and:
 
 - ``pairs_both_named``: both hidden effects added, and nothing else;
@@ -160,7 +164,7 @@ def pairs(args, root: Path) -> None:
         if args.cases and name not in args.cases.split(","):
             continue
         spec = LogSpec(seconds=args.seconds, episodes=args.episodes, seed=300 + i, noise=args.noise,
-                       drop=dropped(args), **{"controller": "sines", **over})
+                       feedback=args.feedback, drop=dropped(args), **{"controller": "sines", **over})
         write_log(root / f"p{i}.csv", spec)
         path, _ = import_log(root / f"p{i}.csv", root / f"p{i}", ImportConfig(50, 60.0, 1.5, 33.5))
         t = time.perf_counter()
@@ -195,6 +199,8 @@ def main() -> None:
     ap.add_argument("--pairs", action="store_true", help="logs with two hidden effects instead (PAIRS)")
     ap.add_argument("--no-mocap", action="store_true", help="logs without the trunk's position and linear velocity")
     ap.add_argument("--no-contacts", action="store_true", help="logs without foot contact flags")
+    ap.add_argument("--feedback", type=float, default=0.0,
+                    help="the controllers level the trunk on the measured roll and pitch, with this gain multiple")
     args = ap.parse_args()
     root = Path(tempfile.mkdtemp())
     cases, seed = (PAIRS, 300) if args.pairs else (OTHER, 700) if args.other else (CASES, 100)
@@ -208,7 +214,7 @@ def main() -> None:
         over, want, effect, key, true = cases[name]
         i = list(cases).index(name)  # a case's log is the same whichever cases run with it
         spec = LogSpec(seconds=args.seconds, episodes=args.episodes, seed=seed + i, noise=args.noise,
-                       drop=dropped(args), **{"controller": "sines", **over})
+                       feedback=args.feedback, drop=dropped(args), **{"controller": "sines", **over})
         write_log(root / f"{i}.csv", spec)
         path, _ = import_log(root / f"{i}.csv", root / f"d{i}", ImportConfig(50, 60.0, 1.5, 33.5))
         t = time.perf_counter()

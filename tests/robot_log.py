@@ -44,6 +44,8 @@ class LogSpec:
     marker: tuple[float, ...] | None = None  # (x, y, z) m [, roll, pitch rad]: the trunk logged as a
     # motion-capture body at that place in the trunk frame, tilted so (extrinsic XYZ)
     noise: float = 0.0                   # multiple of NOISE
+    feedback: float = 0.0                # gain multiple of an attitude feedback (``_level``) the controller adds,
+    # on the measured (noisy) roll, pitch and gyro: the log's actions then depend on its sensor noise
     rename: dict[str, tuple[str, float]] = field(default_factory=dict)  # ours -> (column, scale)
     drop: tuple[str, ...] = ()           # channels left out of the log
 
@@ -82,6 +84,22 @@ def _targets(s: LogSpec, rng: np.random.Generator):
             return out
         return pace
     raise ValueError(s.controller)
+
+
+def _level(measured: np.ndarray, gain: float) -> np.ndarray:
+    """(12,) joint target offsets that level the trunk, from a measured state (43,): each leg
+    extends by e = -0.13 gain (roll + 0.1 roll rate) on the left (+ on the right) + 0.18 gain
+    (pitch + 0.1 pitch rate) at the front (- at the rear), m (half the hip spans, so a tilt is
+    levelled in about one step), by opening the knee (calf + e / 0.143 rad, the leg's length
+    changing 0.143 m per rad of calf at the stance) and turning the thigh back by half that."""
+    roll, pitch = measured[3], measured[4]
+    wx, wy = measured[21], measured[22]
+    out = np.zeros(12)
+    for leg, (left, front) in enumerate(((-1, 1), (1, 1), (-1, -1), (1, -1))):   # FR, FL, RR, RL
+        e = gain * (-0.13 * left * (roll + 0.1 * wx) + 0.18 * front * (pitch + 0.1 * wy))
+        out[3 * leg + 2] += e / 0.143
+        out[3 * leg + 1] -= 0.5 * e / 0.143
+    return out
 
 
 def _rpy(quat_wxyz: np.ndarray) -> np.ndarray:
@@ -123,6 +141,7 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
     offset = np.zeros(12) if s.encoder_offset is None else np.asarray(s.encoder_offset, float)
     sub = s.physics_hz // s.control_hz
     rng = np.random.default_rng(s.seed)
+    noise = _noise(s)                    # (rows, 43): drawn up front, so the controller sees what is logged
     rows: dict[str, list] = {k: [] for k in ("episode_index", "timestamp", *STATE_NAMES,
                                              *(f"action.{j}" for j in JOINT_NAMES))}
     for ep in range(s.episodes):
@@ -142,7 +161,10 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
                                     d.qvel[3:6], d.qvel[dadr], touching, rot.T @ acc])
             if s.marker is not None:
                 state = _as_marker(state, rot, np.asarray(s.marker, float))
+            state = state + noise[len(rows["timestamp"])]
             a = target(k / s.control_hz)
+            if s.feedback:
+                a = a + _level(state, s.feedback)
             for name, v in zip(STATE_NAMES, state):
                 rows[name].append(v)
             for j, v in zip(JOINT_NAMES, a):
@@ -165,14 +187,20 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
                 on_floor = (pairs == floor).any(axis=1)
                 foot = foot_of_body[m.geom_bodyid[pairs[on_floor]]]
                 touching[foot[foot >= 0]] = 1.0
-    out = {k: np.asarray(v, dtype=float) for k, v in rows.items()}
+    return {k: np.asarray(v, dtype=float) for k, v in rows.items()}
+
+
+def _noise(s: LogSpec) -> np.ndarray:
+    """(rows, 43) sensor noise of every logged state, per channel group ``NOISE`` x ``s.noise``."""
+    from acn.toolkit.state import GROUPS
+
+    rows = s.episodes * int(s.seconds * s.control_hz)
+    out = np.zeros((rows, len(STATE_NAMES)))
     if s.noise:
         noise_rng = np.random.default_rng(s.seed + 1000)
         for g, sd in NOISE.items():
-            from acn.toolkit.state import GROUPS
-
             for name in GROUPS[g]:
-                out[name] = out[name] + noise_rng.normal(0, sd * s.noise, len(out[name]))
+                out[:, STATE_NAMES.index(name)] = noise_rng.normal(0, sd * s.noise, rows)
     return out
 
 
