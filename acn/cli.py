@@ -591,7 +591,11 @@ def diagnose_parser() -> argparse.ArgumentParser:
     p.add_argument("--corrector", type=Path, default=None, metavar="DIR",
                    help="with --closed-loop: also run the model with this corrector (acn-fit output)")
     p.add_argument("--no-oracles", action="store_true", help="with --closed-loop: skip the oracle bounds")
-    p.add_argument("--horizons", default=",".join(map(str, d.horizons)), help="open-loop horizons, control steps")
+    p.add_argument("--horizons", default=",".join(map(str, d.horizons)),
+                   help="open-loop horizons, in diagnosis steps (--step-seconds each)")
+    p.add_argument("--step-seconds", type=float, default=d.step_seconds,
+                   help="one diagnosis step, s of control steps (rounded, at least one; 0: one control step): "
+                   "at high control rates one control step moves the robot less than its sensor noise")
     p.add_argument("--effects", default=None, help="comma-separated candidates (default: the whole catalogue)")
     p.add_argument("--seed", type=_nonneg_int, default=d.seed)
     _add_ray_arguments(p, "the re-simulation batches (measured states, candidate fits; rows in chunks)")
@@ -631,6 +635,7 @@ def diagnose_main(argv: list[str] | None = None) -> int:
             raise UserError(f"corrector directory {args.corrector} does not exist")
         model = Model.parse(args.model)
         cfg = DiagnoseConfig(horizons=horizons, candidates=candidates, seed=args.seed,
+                             step_seconds=args.step_seconds if args.step_seconds != 0 else None,
                              auto_alternatives=args.auto_alternatives, finest=args.finest)
         cfg.validate()
         data = load_measurements(args.measured, side=args.side)

@@ -19,6 +19,12 @@ With ``--feedback G``, every log's controller adds an attitude feedback on the m
 roll, pitch and gyro (``robot_log._level``, G its gain multiple; 1 keeps the pace gait upright):
 a closed-loop controller, whose actions carry the sensor noise of the states they follow.
 
+With ``--control-hz HZ``, the logs are recorded at that control rate (default 50); with
+``--torque-control``, the controller runs the PD itself on its noisy readings and logs torques
+(``robot_log.LogSpec.torque_control``, imported with ``--action-mode torque``; use a rate of
+200 Hz or more: at 50-100 Hz the held torques make the robot oscillate and fall). The cases
+whose effect lives in the robot's PD (``pd_gains``, ``backlash``) are skipped then.
+
 With ``--pairs``, logs with TWO hidden effects instead (``--auto``), one line each and:
 
 - ``pairs_both_named``: both hidden effects added, and nothing else;
@@ -158,15 +164,32 @@ def dropped(args) -> tuple[str, ...]:
     return out + (tuple(GROUPS["contact"]) if args.no_contacts else ())
 
 
+def log_spec(args, seed: int, over: dict) -> LogSpec:
+    """The log of one case under the command line's recording options."""
+    return LogSpec(seconds=args.seconds, episodes=args.episodes, seed=seed, noise=args.noise, feedback=args.feedback,
+                   drop=dropped(args), control_hz=args.control_hz, torque_control=args.torque_control,
+                   **{"controller": "sines", **over})
+
+
+def import_config(args) -> ImportConfig:
+    return ImportConfig(args.control_hz, 60.0, 1.5, 33.5, action_mode="torque" if args.torque_control else "position")
+
+
+def in_the_pd(over: dict) -> bool:
+    """Whether a case's effect lives in the robot's PD loop (none under ``--torque-control``)."""
+    return "gains" in over or "deadband" in over
+
+
 def pairs(args, root: Path) -> None:
     named, within = [0, 0], [0, 0]
     for i, (name, (over, truth)) in enumerate(PAIRS.items()):
         if args.cases and name not in args.cases.split(","):
             continue
-        spec = LogSpec(seconds=args.seconds, episodes=args.episodes, seed=300 + i, noise=args.noise,
-                       feedback=args.feedback, drop=dropped(args), **{"controller": "sines", **over})
-        write_log(root / f"p{i}.csv", spec)
-        path, _ = import_log(root / f"p{i}.csv", root / f"p{i}", ImportConfig(50, 60.0, 1.5, 33.5))
+        if args.torque_control and in_the_pd(over):
+            print(f"{name:18s} skipped: its effect is in the robot's PD, which --torque-control moves into the log")
+            continue
+        write_log(root / f"p{i}.csv", log_spec(args, 300 + i, over))
+        path, _ = import_log(root / f"p{i}.csv", root / f"p{i}", import_config(args))
         t = time.perf_counter()
         d = diagnose(load_measurements(path), Model.parse("mujoco"), DiagnoseConfig(), automatic=True)
         fitted = {t.name: t.values for t in d.final.model.effects}
@@ -201,6 +224,9 @@ def main() -> None:
     ap.add_argument("--no-contacts", action="store_true", help="logs without foot contact flags")
     ap.add_argument("--feedback", type=float, default=0.0,
                     help="the controllers level the trunk on the measured roll and pitch, with this gain multiple")
+    ap.add_argument("--control-hz", type=int, default=50, help="the logs' control rate")
+    ap.add_argument("--torque-control", action="store_true",
+                    help="the controller runs the PD on its noisy readings and logs torques (use >= 200 Hz)")
     args = ap.parse_args()
     root = Path(tempfile.mkdtemp())
     cases, seed = (PAIRS, 300) if args.pairs else (OTHER, 700) if args.other else (CASES, 100)
@@ -213,10 +239,11 @@ def main() -> None:
     for name in args.cases.split(",") if args.cases else cases:
         over, want, effect, key, true = cases[name]
         i = list(cases).index(name)  # a case's log is the same whichever cases run with it
-        spec = LogSpec(seconds=args.seconds, episodes=args.episodes, seed=seed + i, noise=args.noise,
-                       feedback=args.feedback, drop=dropped(args), **{"controller": "sines", **over})
-        write_log(root / f"{i}.csv", spec)
-        path, _ = import_log(root / f"{i}.csv", root / f"d{i}", ImportConfig(50, 60.0, 1.5, 33.5))
+        if args.torque_control and in_the_pd(over):
+            print(f"{name:18s} skipped: its effect is in the robot's PD, which --torque-control moves into the log")
+            continue
+        write_log(root / f"{i}.csv", log_spec(args, seed + i, over))
+        path, _ = import_log(root / f"{i}.csv", root / f"d{i}", import_config(args))
         t = time.perf_counter()
         d = diagnose(load_measurements(path), Model.parse("mujoco"), DiagnoseConfig(), automatic=True)
         seconds = time.perf_counter() - t

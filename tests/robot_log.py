@@ -46,6 +46,9 @@ class LogSpec:
     noise: float = 0.0                   # multiple of NOISE
     feedback: float = 0.0                # gain multiple of an attitude feedback (``_level``) the controller adds,
     # on the measured (noisy) roll, pitch and gyro: the log's actions then depend on its sensor noise
+    torque_control: bool = False         # the controller runs the PD itself, on the MEASURED (noisy) joint
+    # angles and speeds, once per control step, and sends torques: the log's actions are N m
+    # (acn-import --action-mode torque); the motor applies them held, through latency and strength
     rename: dict[str, tuple[str, float]] = field(default_factory=dict)  # ours -> (column, scale)
     drop: tuple[str, ...] = ()           # channels left out of the log
 
@@ -129,6 +132,8 @@ def _as_marker(state: np.ndarray, rot: np.ndarray, marker: np.ndarray) -> np.nda
 
 def simulate(s: LogSpec) -> dict[str, np.ndarray]:
     """Rows of every episode, as our channel names -> values (plus episode_index, timestamp, actions)."""
+    if s.torque_control and (s.gains != (1.0, 1.0) or s.deadband):
+        raise ValueError("torque_control: the PD gains and dead band are the controller's, logged in its torques")
     m = _spec(s).compile()
     d = mujoco.MjData(m)
     qadr = np.array([m.jnt_qposadr[m.joint(URDF_JOINT[j]).id] for j in JOINT_NAMES])
@@ -165,6 +170,9 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
             a = target(k / s.control_hz)
             if s.feedback:
                 a = a + _level(state, s.feedback)
+            if s.torque_control:  # the PD on the readings, in the controller: the action is its torque
+                q_read, qd_read = state[6:18], state[24:36]
+                a = s.kp * (a - q_read) - s.kd * qd_read  # unclipped: the motor limits it
             for name, v in zip(STATE_NAMES, state):
                 rows[name].append(v)
             for j, v in zip(JOINT_NAMES, a):
@@ -177,10 +185,13 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
                 queue.append(a)
                 cmd = queue.pop(0)
                 q, qd = d.qpos[qadr] + offset, d.qvel[dadr]
-                err = cmd - q
-                if s.deadband:
-                    err = np.sign(err) * np.maximum(np.abs(err) - s.deadband / 2, 0.0)
-                tau = np.clip(s.gains[0] * s.kp * err - s.gains[1] * s.kd * qd, -s.torque_limit, s.torque_limit)
+                if s.torque_control:
+                    tau = np.clip(cmd, -s.torque_limit, s.torque_limit)
+                else:
+                    err = cmd - q
+                    if s.deadband:
+                        err = np.sign(err) * np.maximum(np.abs(err) - s.deadband / 2, 0.0)
+                    tau = np.clip(s.gains[0] * s.kp * err - s.gains[1] * s.kd * qd, -s.torque_limit, s.torque_limit)
                 d.ctrl[:] = s.strength * tau
                 mujoco.mj_step(m, d)
                 pairs = d.contact.geom[: d.ncon]  # (ncon, 2) geom ids; a foot touches where it meets the floor

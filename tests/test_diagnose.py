@@ -15,7 +15,7 @@ from acn.datasets.record import record
 from acn.errors import UserError
 from acn.models.diagnose import DiagnoseConfig, diagnose
 from acn.models.diagnose.rank import doubt
-from acn.models.diagnose.report import terminal, write_html
+from acn.models.diagnose.report import terminal, to_json, write_html
 from acn.toolkit.collector import CollectConfig
 from acn.toolkit.effects import AppliedEffect, Model, get_effect
 from acn.toolkit.state import JOINT_NAMES
@@ -233,9 +233,11 @@ def test_noisy_nominal_log_is_none(noisy_logs):
 
 
 def test_effects_that_fit_the_noise_in_the_start_states_are_set_aside(tmp_path):
-    """A 100 Hz log with sensor noise and no effect: a dozen encoder offsets lower the one-step
-    error by a third (noisy joint readings press the feet into the ground on average), but make
-    the 25-step open-loop prediction worse; they are not named, and the verdict is none."""
+    """A 100 Hz log with sensor noise and no effect, judged one CONTROL step at a time
+    (``step_seconds=None``; by default a step is 0.02 s there, two control steps, and the offsets
+    remove 8 %, not a third): a dozen encoder offsets lower the one-step error by a third (noisy
+    joint readings press the feet into the ground on average), but make the 25-step open-loop
+    prediction worse; they are not named, and the verdict is none."""
     from acn.datasets.importer import ImportConfig, import_log
     from acn.models.diagnose.rank import one_step_only
 
@@ -243,7 +245,7 @@ def test_effects_that_fit_the_noise_in_the_start_states_are_set_aside(tmp_path):
                                             episodes=3))
     path, _ = import_log(tmp_path / "log.csv", tmp_path / "log", ImportConfig(100, 40.0, 1.0, 33.5))
     cfg = DiagnoseConfig(horizons=(1, 25), compare_rows=300, rollout_starts=60, rank_rows=150, judge_rows=600,
-                         fit_rows=200, rank_iterations=2)
+                         fit_rows=200, rank_iterations=2, step_seconds=None)
     d = diagnose(load_measurements(path), Model.parse("mujoco"), cfg)
     offsets = next(c for c in d.ranking if c.name == "encoder_offset")
     assert offsets.judgement.significant and offsets.judgement.removed > 0.2  # what fooled the one-step judge
@@ -292,6 +294,25 @@ def test_a_closed_loop_controllers_noisy_log_finds_the_damping(tmp_path):
     d = diagnose(m, Model.parse("mujoco"), replace(FAST, finest="shared"), add=["joint_damping"])
     assert d.ranking[0].name == "joint_damping" and d.verdict == "effect", d.reason
     assert close(d.added[0].fit.values["value"], 0.5)   # 0.457 here; seeds 22, 23: 0.436, 0.528
+    assert d.added[0].judgement.explained(d.floor_mse) >= 0.8
+
+
+def test_a_torque_controlled_200_hz_noisy_log_finds_the_damping(tmp_path):
+    """A controller that runs the PD itself at 200 Hz on its noisy readings and logs torques
+    (acn-import --action-mode torque). One diagnosis step is 0.02 s, four control steps: judged
+    one 5 ms control step at a time, the trunk's frame, armature and encoder offsets each removed
+    55-61 % of the error (they reshape how the start state's noise propagates) against damping's
+    38 %, and --auto added offsets first."""
+    from acn.datasets.importer import ImportConfig, import_log
+
+    damping = lambda spec: [j.damping.__setitem__(0, 0.5) for j in spec.joints if j.name != "root"]  # noqa: E731
+    write_log(tmp_path / "log.csv", LogSpec(noise=1.0, seed=103, control_hz=200, torque_control=True, spec_edit=damping))
+    path, _ = import_log(tmp_path / "log.csv", tmp_path / "robot", ImportConfig(200, 60.0, 1.5, 33.5, action_mode="torque"))
+    d = diagnose(load_measurements(path), Model.parse("mujoco"), replace(FAST, finest="shared"), add=["joint_damping"])
+    assert to_json(d)["step"] == {"control_steps": 4, "seconds": pytest.approx(0.02)}
+    assert "one step = 4 control steps (0.02 s" in terminal(d)
+    assert d.ranking[0].name == "joint_damping" and d.verdict == "effect", d.reason
+    assert close(d.added[0].fit.values["value"], 0.5)
     assert d.added[0].judgement.explained(d.floor_mse) >= 0.8
 
 
@@ -408,6 +429,7 @@ def test_a_log_that_breaks_a_convention_is_diagnosed_with_its_data_checks(tmp_pa
     (["--horizons", "1,x"], "--horizons"),
     (["--corrector", "c"], "give --closed-loop"),
     (["--finest", "wheel"], "finest must be one of shared, type, leg, joint"),
+    (["--step-seconds", "-0.01"], "step_seconds must be a positive number"),
 ])
 def test_cli_bad_input_is_one_line(tmp_path, capsys, args, message):
     from acn.cli import diagnose_main

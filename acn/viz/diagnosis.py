@@ -124,7 +124,7 @@ def prepared_measurements(path: Path, model: Model, side: str = "source"):
     from acn.models.diagnose.problem import DiagnoseConfig, prepare
 
     data = load_measurements(path, side)
-    return prepare(data, model, DiagnoseConfig(horizons=(1,)))
+    return prepare(data, model, DiagnoseConfig(horizons=(1,), step_seconds=None))
 
 
 def predict_episode(problem, sim: Resimulator, stages: list[Stage], episode: int, corrector=None) -> StagePrediction:

@@ -71,7 +71,8 @@ def floor_of(problem: Problem, model: Model, rows: np.ndarray, residual: np.ndar
     r_fit = problem.residual_of(model.sim_config(problem.control), fit)
     ok = np.isfinite(r_fit).all(1)
     keep = np.isfinite(residual).all(1)
-    return noise_floor(problem.data, problem.channel_names, fit[ok], r_fit[ok], rows[keep], residual[keep])
+    return noise_floor(problem.data, problem.channel_names, fit[ok], r_fit[ok], rows[keep], residual[keep],
+                       problem.unit)
 
 
 def _corrector(model: Model):

@@ -207,7 +207,7 @@ class Objective:
         d = problem.data
         self.problem, self.base, self.free, self.rows = problem, base, free, rows
         self.scale = free.scale()
-        self.actions = d.action[rows]
+        self.actions = problem.actions(rows)  # (N, unit, 12): one diagnosis step
         self.previous = d.previous_actions(rows, problem.history)
         self.budget, self.evaluations = budget, 0
         self.norm: minimize.Norm | None = None
@@ -224,9 +224,9 @@ class Objective:
         model = np.repeat(np.arange(k), n)
         starts = self.problem.data.starts(np.tile(self.rows, k), self.problem.backend, configs, model)
         with Resimulator(self.problem.backend, configs, threads=self.problem.threads) as sim:
-            pred = sim.run(starts, np.tile(self.actions, (k, 1)), np.tile(self.previous, (k, 1, 1)), model=model)
+            pred = sim.run(starts, np.tile(self.actions, (k, 1, 1)), np.tile(self.previous, (k, 1, 1)), model=model)
         self.evaluations += k
-        r = self.problem.residual(pred.state[:, 0], np.tile(self.rows, k))
+        r = self.problem.residual(pred.state[:, -1], np.tile(self.rows, k))
         r = np.where(np.isfinite(r), r, DIVERGED_RESIDUAL).reshape(k, -1).T / np.sqrt(n)
         if self.norm is not None:
             for j in range(k):
@@ -339,7 +339,7 @@ def _stderr(r: np.ndarray, jac: np.ndarray) -> np.ndarray:
     return out
 
 
-IV_LAG = 2         # control steps between a row and its instrument rows (noise correlated over fewer)
+IV_LAG = 2         # diagnosis steps between a row and its instrument rows (noise correlated over fewer)
 IV_MAX_COST = 1.05  # the instrumental fit may cost at most this much more than least squares (pseudo-Huber)
 
 
@@ -366,8 +366,9 @@ def instrumental_refit(problem: Problem, base: Model, fit: EffectFit, rows: np.n
     """
     if not any(p.per_joint for p in fit.effect.parameters):
         return fit
-    rows = rows[problem.data.with_neighbours(rows, IV_LAG)]
-    lag = np.concatenate([rows - IV_LAG, rows + IV_LAG])
+    step = IV_LAG * problem.unit  # control steps: the instruments' windows share no measured state with row t's
+    rows = rows[problem.data.with_neighbours(rows, step) & problem.data.with_neighbours(rows, step + problem.unit - 1)]
+    lag = np.concatenate([rows - step, rows + step])
     free = _together(problem, base, fit.effect, fit.granularity, refit)
     if len(rows) < 10 * len(fit.x):
         return fit

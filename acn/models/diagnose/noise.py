@@ -37,9 +37,14 @@ _SKIP = ("base_pos_x", "base_pos_y", "base_yaw")  # where the robot is and faces
 RIDGE = 1e-3  # regularisation, relative to the mean feature variance
 
 
-def joint_library(d: Measurements, rows: np.ndarray) -> np.ndarray:
+def window_action(d: Measurements, rows: np.ndarray, unit: int = 1) -> np.ndarray:
+    """(N, 12) the mean action over the ``unit`` control steps of one diagnosis step from each row."""
+    return d.action[rows] if unit == 1 else d.action[rows[:, None] + np.arange(unit)[None]].mean(1)
+
+
+def joint_library(d: Measurements, rows: np.ndarray, unit: int = 1) -> np.ndarray:
     """(N, 12, F) candidate terms per joint (module docstring)."""
-    s, a = d.state[rows], d.action[rows]
+    s, a = d.state[rows], window_action(d, rows, unit)
     prev = d.previous_actions(rows, 1)[:, 0]
     q, qd = s[:, SLICES["joint_pos"]], s[:, SLICES["joint_vel"]]
     contact = np.nan_to_num(np.repeat(s[:, SLICES["contact"]], 3, axis=1))
@@ -52,10 +57,10 @@ def joint_library(d: Measurements, rows: np.ndarray) -> np.ndarray:
     return np.nan_to_num(np.concatenate([by_type, bias], axis=2))
 
 
-def body_library(d: Measurements, rows: np.ndarray) -> np.ndarray:
-    """(N, F): [1, state without x, y, yaw, a_t, a_t - a_{t-1}]."""
+def body_library(d: Measurements, rows: np.ndarray, unit: int = 1) -> np.ndarray:
+    """(N, F): [1, state without x, y, yaw, a_t, a_t - a_{t-1}] (a_t: over the diagnosis step)."""
     keep = [i for i, n in enumerate(STATE_NAMES) if n not in _SKIP]
-    a = d.action[rows]
+    a = window_action(d, rows, unit)
     prev = d.previous_actions(rows, 1)[:, 0]
     return np.nan_to_num(np.concatenate([np.ones((len(rows), 1)), d.state[rows][:, keep], a, a - prev], axis=1))
 
@@ -71,15 +76,15 @@ def _ridge_left(x_fit: np.ndarray, y_fit: np.ndarray, x_held: np.ndarray, y_held
     return (xh @ coef - y_held) ** 2
 
 
-def _instrumented(library, d: Measurements, fit_rows: np.ndarray, held_rows: np.ndarray):
+def _instrumented(library, d: Measurements, fit_rows: np.ndarray, held_rows: np.ndarray, unit: int = 1):
     """The library at rows t, as predicted (least squares on the fit rows) from the library at
     rows t - LAG and t + LAG, for fit and held-out rows: two-stage least squares. The measured
     state at t carries the very sensor noise that row t's residual carries (the model starts
     from it); the rows around share none of it, so what the second stage predicts is dynamics,
     not noise."""
     def stacked(rows):
-        x = library(d, rows)
-        z = np.concatenate([library(d, rows - LAG), library(d, rows + LAG)], axis=-1)
+        x = library(d, rows, unit)
+        z = np.concatenate([library(d, rows - LAG * unit, unit), library(d, rows + LAG * unit, unit)], axis=-1)
         return x.reshape(-1, x.shape[-1]), z.reshape(-1, z.shape[-1])
 
     (xf, zf), (_, zh) = stacked(fit_rows), stacked(held_rows)
@@ -90,9 +95,13 @@ def _instrumented(library, d: Measurements, fit_rows: np.ndarray, held_rows: np.
 
 
 def noise_floor(d: Measurements, channel_names: list[str], fit_rows: np.ndarray, r_fit: np.ndarray,
-                held_rows: np.ndarray, r_held: np.ndarray) -> np.ndarray:
-    """(C,) held-out MSE per compared channel left after the regressions (module docstring)."""
-    f_ok, h_ok = d.with_neighbours(fit_rows, LAG), d.with_neighbours(held_rows, LAG)
+                held_rows: np.ndarray, r_held: np.ndarray, unit: int = 1) -> np.ndarray:
+    """(C,) held-out MSE per compared channel left after the regressions (module docstring); a
+    residual spans ``unit`` control steps (the terms' actions are averaged over them, the
+    instruments lie LAG such steps away)."""
+    lag = LAG * unit
+    f_ok = d.with_neighbours(fit_rows, lag) & d.with_neighbours(fit_rows, lag + unit - 1)
+    h_ok = d.with_neighbours(held_rows, lag) & d.with_neighbours(held_rows, lag + unit - 1)
     use_iv = f_ok.sum() >= 50 and h_ok.sum() >= 10  # else (short episodes) the terms of row t's own state
     if use_iv:
         fit_rows, r_fit, held_rows, r_held = fit_rows[f_ok], r_fit[f_ok], held_rows[h_ok], r_held[h_ok]
@@ -102,8 +111,8 @@ def noise_floor(d: Measurements, channel_names: list[str], fit_rows: np.ndarray,
 
     def features(library):
         if use_iv:
-            return _instrumented(library, d, fit_rows, held_rows)
-        xf, xh = library(d, fit_rows), library(d, held_rows)
+            return _instrumented(library, d, fit_rows, held_rows, unit)
+        xf, xh = library(d, fit_rows, unit), library(d, held_rows, unit)
         return xf.reshape(-1, xf.shape[-1]), xh.reshape(-1, xh.shape[-1])
 
     if all(per_joint) and len({len(c) for c in per_joint}) == 1:

@@ -249,7 +249,7 @@ def explain_corrector(data: Measurements, model: Model, corrector_dir, cfg: Diag
     from acn.toolkit.resim import Resimulator
 
     corrector = Corrector.load(corrector_dir)
-    cfg = replace(cfg or DiagnoseConfig(), horizons=(1,))
+    cfg = replace(cfg or DiagnoseConfig(), horizons=(1,), step_seconds=None)
     problem = prepare(data, model, cfg)
     rows = np.concatenate([problem.fit_rows, problem.held_rows])
     d = problem.data

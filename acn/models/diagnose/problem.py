@@ -6,6 +6,14 @@ channel's error at horizon k is divided by the spread (std) of its measured k-st
 1.0 means "as wrong as predicting that nothing moves". Rows are split by episode (by time
 blocks when there are too few episodes) into FIT rows, on which parameters are estimated, and
 HELD-OUT rows, on which every reported error and every explained share is computed.
+
+One diagnosis STEP is ``DiagnoseConfig.step_seconds`` of control steps (0.02 s: one control
+step at 50 Hz and below, four at 200 Hz), and horizons count these steps. At a high control
+rate one control step moves the robot less than its sensor noise: a 200 Hz log with sensor
+noise and joint damping 0.5 had the trunk's frame, armature and encoder offsets each remove
+55-61 % of the one-control-step error (they reshape how the noise in the measured start state
+propagates) against damping's 38 %, and `--auto` added offsets before damping. A prediction
+over 0.02 s of the logged actions lets the physics act as long as at 50 Hz.
 """
 
 from __future__ import annotations
@@ -32,7 +40,8 @@ MAX_LATENCY = 0.06  # s, the catalogue's upper bound: how many previous actions 
 class DiagnoseConfig:
     """Every knob of ``acn-diagnose``; row counts trade time for statistical power."""
 
-    horizons: tuple[int, ...] = (1, 5, 25)   # control steps of open-loop prediction
+    horizons: tuple[int, ...] = (1, 5, 25)   # steps of open-loop prediction (one step: ``step_seconds``)
+    step_seconds: float | None = 0.02  # s of control steps (rounded, >= 1) per diagnosis step; None: one control step
     compare_rows: int = 20_000     # held-out rows re-simulated for the one-step error table
     rollout_starts: int = 200      # held-out starts per longer horizon
     rank_rows: int = 400           # fit rows used to fit every candidate
@@ -47,6 +56,8 @@ class DiagnoseConfig:
     seed: int = 0
 
     def validate(self) -> None:
+        if self.step_seconds is not None and not (math.isfinite(self.step_seconds) and self.step_seconds > 0):
+            raise UserError(f"step_seconds must be a positive number of seconds (or None), got {self.step_seconds}")
         if not self.horizons or min(self.horizons) < 1:
             raise UserError("horizons must be whole numbers >= 1")
         for name in ("compare_rows", "rollout_starts", "rank_rows", "judge_rows", "fit_rows"):
@@ -58,6 +69,10 @@ class DiagnoseConfig:
 
         if self.finest not in GRANULARITIES:
             raise UserError(f"finest must be one of {', '.join(GRANULARITIES)}, got {self.finest!r}")
+
+    def unit(self, control_dt: float) -> int:
+        """Control steps per diagnosis step at a control period of ``control_dt`` s."""
+        return 1 if self.step_seconds is None else max(1, int(math.floor(self.step_seconds / control_dt + 0.5)))
 
 
 @dataclass
@@ -75,6 +90,7 @@ class Problem:
     derived: list[str] = field(default_factory=list)
     threads: int | None = None
     seed: int = 0
+    unit: int = 1                   # control steps per diagnosis step (``DiagnoseConfig.step_seconds``)
 
     @property
     def channel_names(self) -> list[str]:
@@ -84,21 +100,30 @@ class Problem:
         return [next(g for g in GROUPS if n in GROUPS[g]) for n in self.channel_names]
 
     # ----- re-simulation -----------------------------------------------------------------
+    def steps(self, horizon: int) -> int:
+        """Control steps in ``horizon`` diagnosis steps."""
+        return horizon * self.unit
+
+    def actions(self, rows: np.ndarray, horizon: int = 1) -> np.ndarray:
+        """(N, steps, 12) the measured actions of ``horizon`` diagnosis steps from each row."""
+        return self.data.action[rows[:, None] + np.arange(self.steps(horizon))[None]]
+
     def predict(self, configs: SimConfig | list[SimConfig], rows: np.ndarray, horizon: int = 1,
                 model_of_row: np.ndarray | None = None, corrector=None) -> np.ndarray:
-        """Predicted s_{t+horizon} (N, 43) from measured s_t and the measured actions."""
+        """Predicted state (N, 43) ``horizon`` diagnosis steps after measured s_t, under the measured
+        actions (``corrector``, at one step: each action corrected from the measured state it follows)."""
         d = self.data
-        steps = rows[:, None] + np.arange(horizon)[None]
-        actions = d.action[steps]
+        actions = self.actions(rows, horizon)
         if corrector is not None and horizon == 1:
-            actions[:, 0] = corrector.correct(d.state[rows], actions[:, 0])
+            for i in range(self.unit):
+                actions[:, i] = corrector.correct(d.state[rows + i], actions[:, i])
         with Resimulator(self.backend, configs, threads=self.threads) as sim:
             pred = sim.run(d.starts(rows, self.backend, configs, model_of_row), actions,
                            d.previous_actions(rows, self.history), model=model_of_row)
         return pred.state[:, -1]
 
     def measured(self, rows: np.ndarray, horizon: int = 1) -> np.ndarray:
-        return self.data.next_state[rows + horizon - 1]
+        return self.data.next_state[rows + self.steps(horizon) - 1]
 
     def residual(self, predicted: np.ndarray, rows: np.ndarray, horizon: int = 1) -> np.ndarray:
         """Normalised (measured - predicted) over the compared channels, (N, C); NaN if diverged."""
@@ -111,7 +136,7 @@ class Problem:
     def rollout_starts(self, horizon: int, count: int) -> np.ndarray:
         """Held-out rows that start ``horizon`` consecutive steps (at most ``count``; the same
         rows for every model, so errors at that horizon compare pairwise)."""
-        return self.sample(np.intersect1d(self.held_rows, self.data.windows(horizon)), count, salt=horizon)
+        return self.sample(np.intersect1d(self.held_rows, self.data.windows(self.steps(horizon))), count, salt=horizon)
 
     def sample(self, rows: np.ndarray, count: int, salt: int = 0) -> np.ndarray:
         """At most ``count`` of ``rows``, spread evenly over them (deterministic)."""
@@ -131,16 +156,19 @@ def prepare(data: Measurements, model: Model, cfg: DiagnoseConfig) -> Problem:
     available = data.available
     channels = np.array([STATE_NAMES.index(n) for g in COMPARED_GROUPS for n in GROUPS[g]
                          if available[STATE_NAMES.index(n)] and n not in derived])
+    unit = cfg.unit(data.control.control_dt)
     scale = {}
     for h in sorted(set(cfg.horizons) | {1}):
-        starts = data.windows(h)
+        starts = data.windows(h * unit)
         if len(starts) < 8:
-            raise UserError(f"horizon {h}: fewer than 8 runs of {h} consecutive steps in the measurements")
-        change = state_difference(data.next_state[starts + h - 1], data.state[starts])[:, channels]
+            raise UserError(f"horizon {h}: fewer than 8 runs of {h * unit} consecutive control steps in the measurements")
+        change = state_difference(data.next_state[starts + h * unit - 1], data.state[starts])[:, channels]
         spread = np.nanstd(change, axis=0)
         scale[h] = np.where(spread > 1e-9, spread, 1.0)
     held = _held_out_mask(data, cfg.seed)
-    ok = finite & np.isfinite(data.next_state[:, channels]).all(1)
+    ok = np.zeros(len(data), dtype=bool)  # a complete start state and a measured state one step (unit) later
+    starts = data.windows(unit)
+    ok[starts] = finite[starts] & np.isfinite(data.next_state[starts + unit - 1][:, channels]).all(1)
     history = int(math.ceil(MAX_LATENCY / data.control.control_dt)) + 1
     fit_rows, held_rows = np.flatnonzero(ok & ~held), np.flatnonzero(ok & held)
     if min(len(fit_rows), len(held_rows)) < 8:
@@ -148,7 +176,7 @@ def prepare(data: Measurements, model: Model, cfg: DiagnoseConfig) -> Problem:
                         f"({len(fit_rows)} / {len(held_rows)}); record longer or more episodes")
     return Problem(data=data, control=data.control, backend=model.backend, channels=channels, scale=scale,
                    fit_rows=fit_rows, held_rows=held_rows, history=history,
-                   derived=derived, threads=cfg.threads, seed=cfg.seed)
+                   derived=derived, threads=cfg.threads, seed=cfg.seed, unit=unit)
 
 
 def _dynamic() -> np.ndarray:

@@ -6,7 +6,8 @@ JSON keys (the machine-readable contract):
 - ``data_checks``: the measurements' own consistency findings (``acn.datasets.checks``), each
   ``check``, ``channels``, ``message``; empty when consistent;
 - ``headline_error``: its definition and the value before and after the added effects;
-- ``error``: horizon (control steps, as a string) -> channel group -> normalised RMS;
+- ``step``: one diagnosis step, ``control_steps`` and ``seconds`` (``DiagnoseConfig.step_seconds``);
+- ``error``: horizon (diagnosis steps, as a string) -> channel group -> normalised RMS;
 - ``noise_floor``: MSE, share of the error, per channel group;
 - ``where``: the breakdown (``where`` module) with its ``summary``;
 - ``ranking``: best first, each ``name``, ``params`` (as in a model file), ``granularity``,
@@ -125,6 +126,7 @@ def to_json(d: Diagnosis) -> dict:
                  "compared": len(d.before.rows), "diverged": d.before.diverged},
         "derived_channels": p.derived,
         "headline_error": {"definition": HEADLINE, "before": d.before.headline, "after": d.final.headline},
+        "step": {"control_steps": p.unit, "seconds": p.unit * p.control.control_dt},
         "error": _errors(d.before),
         "noise_floor": {"mse": d.floor_mse, "share_of_error": 1.0 - d.structured_share,
                         "by_group": {g: round(v, 6) for g, v in groups.items()}},
@@ -180,6 +182,9 @@ def error_table(before: Comparison, after: Comparison | None = None) -> str:
 def terminal(d: Diagnosis) -> str:
     out = [f"measurements: {d.measurements}; model: {d.before.model.describe()}"]
     out += [f"data check ({f.check}): {f.message}" for f in d.data_checks]
+    if d.problem.unit > 1:
+        out += [f"one step = {d.problem.unit} control steps ({d.problem.unit * d.problem.control.control_dt:.3g} s: "
+                "--step-seconds), so sensor noise does not swamp what an effect does in one control step"]
     out += [f"headline error (one step, normalised): {d.before.headline:.4f}; noise floor "
             f"{1 - d.structured_share:.0%} of it", "", "error per channel group and horizon (normalised RMS, held-out "
             "rows):", error_table(d.before), "", "where: " + d.where["summary"], "", "candidate effects, best first:"]
