@@ -309,7 +309,7 @@ def test_a_torque_controlled_200_hz_noisy_log_finds_the_damping(tmp_path):
     write_log(tmp_path / "log.csv", LogSpec(noise=1.0, seed=103, control_hz=200, torque_control=True, spec_edit=damping))
     path, _ = import_log(tmp_path / "log.csv", tmp_path / "robot", ImportConfig(200, 60.0, 1.5, 33.5, action_mode="torque"))
     d = diagnose(load_measurements(path), Model.parse("mujoco"), replace(FAST, finest="shared"), add=["joint_damping"])
-    assert to_json(d)["step"] == {"control_steps": 4, "seconds": pytest.approx(0.02)}
+    assert to_json(d)["step"] == {"control_steps": 4, "seconds": pytest.approx(0.02), "check_horizon": 5}
     assert "one step = 4 control steps (0.02 s" in terminal(d)
     assert d.ranking[0].name == "joint_damping" and d.verdict == "effect", d.reason
     assert close(d.added[0].fit.values["value"], 0.5)

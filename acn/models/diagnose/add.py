@@ -94,9 +94,9 @@ def add_effect(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, j
 
 
 def longest_removed(before: Comparison, after: Comparison) -> float | None:
-    """Share of ``before``'s open-loop error at the longest compared horizon (> 1) that ``after``
-    removes (None with one-step horizons only)."""
-    h = max(before.channel_error)
+    """Share of ``before``'s open-loop error at the check's horizon (> 1; ``Comparison.check``) that
+    ``after`` removes (None with one-step horizons only)."""
+    h = before.check
     if h <= 1:
         return None
     b, a = (np.mean(c.channel_error[h] ** 2) for c in (before, after))
@@ -252,7 +252,7 @@ def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge
         longer = v["longest_horizon_removed"]
         gains = f"one-step error {-v['one_step_removed']:+.1%} (z {v['z']:.1f})"
         if longer is not None:
-            gains += f", {max(steps[-1].after.channel_error)}-step error {-longer:+.0%}"
+            gains += f", {steps[-1].after.check}-step error {-longer:+.0%}"
         gains += f" against {kept.label}"
         if (v["z"] >= PARSIMONY_Z and (longer is None or longer > 0)
                 and (v["one_step_removed"] >= AUTO_MIN_REMOVED or (longer or 0.0) >= AUTO_MIN_LONGER)):

@@ -35,7 +35,7 @@ import numpy as np
 from acn.datasets import checks
 from acn.datasets.measurements import Measurements
 from acn.models.diagnose.add import Added, Chain, add_effect, auto, longest_removed
-from acn.models.diagnose.compare import Comparison, compare, floor_of
+from acn.models.diagnose.compare import Comparison, compare, floor_of, informative_horizon
 from acn.models.diagnose.problem import DiagnoseConfig, Problem, prepare
 from acn.models.diagnose.rank import (STRUCTURED_SHARE, Candidate, doubt, explained_share, implausible,
                                       fits_noise_by_size, one_step_only, rank)
@@ -98,7 +98,7 @@ def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Cand
         left = 1.0 - floor_mse / after if after > 0 else 0.0
         if min(structured, left) < STRUCTURED_SHARE:  # what is left is noise, by the rule that gives "none"
             longer = longest_removed(before, added[-1].after)
-            gain = f" (the {max(before.channel_error)}-step open-loop error falls by {longer:.0%})" if longer and longer > 0 else ""
+            gain = f" (the {before.check}-step open-loop error falls by {longer:.0%})" if longer and longer > 0 else ""
             why = (f"the one-step error is mostly sensor noise (only {max(structured, 0):.0%} of it is predictable "
                    f"from the state and actions)" if structured < STRUCTURED_SHARE else
                    f"only {max(left, 0):.0%} of the one-step error left is predictable from the state and actions, "
@@ -195,6 +195,7 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
     problem = prepare(data, model, cfg)
     say("comparing the model with the measurements")
     before = compare(problem, model, cfg)
+    problem.check_horizon = before.check_horizon = informative_horizon(before)
     judge_rows = problem.sample(problem.held_rows, cfg.judge_rows, salt=4)
     residual = problem.residual_of(model.sim_config(problem.control), judge_rows)
     ok = np.isfinite(residual).all(1)

@@ -91,6 +91,7 @@ class Problem:
     threads: int | None = None
     seed: int = 0
     unit: int = 1                   # control steps per diagnosis step (``DiagnoseConfig.step_seconds``)
+    check_horizon: int | None = None  # the open-loop check's horizon (``informative_horizon``; None: the longest)
 
     @property
     def channel_names(self) -> list[str]:

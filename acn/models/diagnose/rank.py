@@ -216,7 +216,8 @@ class LongestHorizon:
 
     @property
     def steps(self) -> int:
-        return max(self.cfg.horizons)
+        """The check's horizon (``compare.informative_horizon``; the longest before it is known)."""
+        return (self.problem.check_horizon if self.problem is not None else None) or max(self.cfg.horizons)
 
     def gain(self, candidate: Model) -> float:
         """Share of ``model``'s open-loop error at the longest horizon that ``candidate`` removes."""

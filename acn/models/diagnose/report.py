@@ -6,7 +6,8 @@ JSON keys (the machine-readable contract):
 - ``data_checks``: the measurements' own consistency findings (``acn.datasets.checks``), each
   ``check``, ``channels``, ``message``; empty when consistent;
 - ``headline_error``: its definition and the value before and after the added effects;
-- ``step``: one diagnosis step, ``control_steps`` and ``seconds`` (``DiagnoseConfig.step_seconds``);
+- ``step``: one diagnosis step, ``control_steps`` and ``seconds`` (``DiagnoseConfig.step_seconds``), and
+  ``check_horizon``: the steps of the open-loop check (``compare.informative_horizon``);
 - ``error``: horizon (diagnosis steps, as a string) -> channel group -> normalised RMS;
 - ``noise_floor``: MSE, share of the error, per channel group;
 - ``where``: the breakdown (``where`` module) with its ``summary``;
@@ -17,7 +18,7 @@ JSON keys (the machine-readable contract):
   ``z``, ``significant``, ``significant_by`` (``"one step"``, ``"longest horizon"``: ``rank.uneven``;
   null when not significant), ``score``, ``implausible`` (why it cannot be the explanation, "" if it
   can: ``rank.doubt``), ``longest_horizon_removed`` (share of the open-loop error at the
-  longest horizon it removes; null where not checked: ``rank.screen``);
+  check's horizon, ``step.check_horizon``, it removes; null where not checked: ``rank.screen``);
 - ``added`` (with ``--add`` / ``--auto``): in order, ``name``, ``params``, ``error_before`` and
   ``error_after`` (horizon -> group), ``headline_before``, ``headline_after``, ``explained``;
 - ``model`` and ``final_model``: the model files before and after;
@@ -126,7 +127,7 @@ def to_json(d: Diagnosis) -> dict:
                  "compared": len(d.before.rows), "diverged": d.before.diverged},
         "derived_channels": p.derived,
         "headline_error": {"definition": HEADLINE, "before": d.before.headline, "after": d.final.headline},
-        "step": {"control_steps": p.unit, "seconds": p.unit * p.control.control_dt},
+        "step": {"control_steps": p.unit, "seconds": p.unit * p.control.control_dt, "check_horizon": d.before.check},
         "error": _errors(d.before),
         "noise_floor": {"mse": d.floor_mse, "share_of_error": 1.0 - d.structured_share,
                         "by_group": {g: round(v, 6) for g, v in groups.items()}},
@@ -195,7 +196,7 @@ def terminal(d: Diagnosis) -> str:
         rows.append([c.name, c.fit.granularity, f"{j.explained(d.floor_mse):.0%}", f"{j.removed:+.1%}", f"{j.z:.1f}",
                      _significant(c), _longer(c), params])
     out.append(_table(["effect", "fitted as", "explained", "error removed", "z", "significant",
-                       f"{max(d.before.error)}-step removed", "parameters"], rows))
+                       f"{d.before.check}-step removed", "parameters"], rows))
     out += [f"set aside: {c.name} {doubt(c)}" for c in d.ranking if c.judgement.significant and doubt(c)]
     out += [f"set aside by --auto: {name} {why}" for name, why in d.set_aside.items()]
     for a in d.added:
@@ -300,7 +301,7 @@ td,th{{border:1px solid #ccc;padding:4px 8px}}</style></head><body>
 ({html.escape(HEADLINE)}). Noise floor: {1 - d.structured_share:.0%} of the error.</p>
 <p><b>Where:</b> {html.escape(d.where['summary'])}</p>
 <h2>Candidate effects</h2><table><tr><th>effect</th><th>fitted as</th><th>explained</th><th>error removed</th><th>z</th>
-<th>{max(d.before.error)}-step error removed</th><th>parameters</th><th>set aside because</th></tr>{ranking}</table>
+<th>{d.before.check}-step error removed</th><th>parameters</th><th>set aside because</th></tr>{ranking}</table>
 {'<h2>Added</h2><ul>' + added + '</ul>' if added else ''}
 {'<p>Chains of effects tried by --auto (one effect can stand in for two):</p><ul>' + chains + '</ul>' if chains else ''}
 {loop_html}
