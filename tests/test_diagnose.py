@@ -306,8 +306,10 @@ def test_a_torque_controlled_200_hz_noisy_log_finds_the_damping(tmp_path):
     from acn.datasets.importer import ImportConfig, import_log
 
     damping = lambda spec: [j.damping.__setitem__(0, 0.5) for j in spec.joints if j.name != "root"]  # noqa: E731
-    write_log(tmp_path / "log.csv", LogSpec(noise=1.0, seed=103, control_hz=200, torque_control=True, spec_edit=damping))
-    path, _ = import_log(tmp_path / "log.csv", tmp_path / "robot", ImportConfig(200, 60.0, 1.5, 33.5, action_mode="torque"))
+    write_log(tmp_path / "log.csv", LogSpec(noise=1.0, seed=103, control_hz=200, torque_control=True,
+                                            spec_edit=damping))
+    path, _ = import_log(tmp_path / "log.csv", tmp_path / "robot",
+                         ImportConfig(200, 60.0, 1.5, 33.5, action_mode="torque"))
     d = diagnose(load_measurements(path), Model.parse("mujoco"), replace(FAST, finest="shared"), add=["joint_damping"])
     assert to_json(d)["step"] == {"control_steps": 4, "seconds": pytest.approx(0.02), "check_horizon": 5}
     assert "one step = 4 control steps (0.02 s" in terminal(d)

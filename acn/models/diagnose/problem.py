@@ -162,14 +162,15 @@ def prepare(data: Measurements, model: Model, cfg: DiagnoseConfig) -> Problem:
     for h in sorted(set(cfg.horizons) | {1}):
         starts = data.windows(h * unit)
         if len(starts) < 8:
-            raise UserError(f"horizon {h}: fewer than 8 runs of {h * unit} consecutive control steps in the measurements")
+            raise UserError(f"horizon {h}: fewer than 8 runs of {h * unit} consecutive control steps "
+                            "in the measurements")
         change = state_difference(data.next_state[starts + h * unit - 1], data.state[starts])[:, channels]
         spread = np.nanstd(change, axis=0)
         scale[h] = np.where(spread > 1e-9, spread, 1.0)
     held = _held_out_mask(data, cfg.seed)
     ok = np.zeros(len(data), dtype=bool)  # a complete start state and a measured state one step (unit) later
-    starts = data.windows(unit)
-    ok[starts] = finite[starts] & np.isfinite(data.next_state[starts + unit - 1][:, channels]).all(1)
+    one_step = data.windows(unit)
+    ok[one_step] = finite[one_step] & np.isfinite(data.next_state[one_step + unit - 1][:, channels]).all(1)
     history = int(math.ceil(MAX_LATENCY / data.control.control_dt)) + 1
     fit_rows, held_rows = np.flatnonzero(ok & ~held), np.flatnonzero(ok & held)
     if min(len(fit_rows), len(held_rows)) < 8:
