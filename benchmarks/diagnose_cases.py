@@ -175,9 +175,13 @@ def import_config(args) -> ImportConfig:
     return ImportConfig(args.control_hz, 60.0, 1.5, 33.5, action_mode="torque" if args.torque_control else "position")
 
 
-def in_the_pd(over: dict) -> bool:
-    """Whether a case's effect lives in the robot's PD loop (none under ``--torque-control``)."""
-    return "gains" in over or "deadband" in over
+def skipped(args, name: str, over: dict) -> bool:
+    """Whether a case is skipped (and says so): under ``--torque-control`` the effects that live in
+    the robot's PD loop, which the controller's logged torques then contain."""
+    if args.torque_control and ("gains" in over or "deadband" in over):
+        print(f"{name:18s} skipped: its effect is in the robot's PD, which --torque-control moves into the log")
+        return True
+    return False
 
 
 def pairs(args, root: Path) -> None:
@@ -185,8 +189,7 @@ def pairs(args, root: Path) -> None:
     for i, (name, (over, truth)) in enumerate(PAIRS.items()):
         if args.cases and name not in args.cases.split(","):
             continue
-        if args.torque_control and in_the_pd(over):
-            print(f"{name:18s} skipped: its effect is in the robot's PD, which --torque-control moves into the log")
+        if skipped(args, name, over):
             continue
         write_log(root / f"p{i}.csv", log_spec(args, 300 + i, over))
         path, _ = import_log(root / f"p{i}.csv", root / f"p{i}", import_config(args))
@@ -239,8 +242,7 @@ def main() -> None:
     for name in args.cases.split(",") if args.cases else cases:
         over, want, effect, key, true = cases[name]
         i = list(cases).index(name)  # a case's log is the same whichever cases run with it
-        if args.torque_control and in_the_pd(over):
-            print(f"{name:18s} skipped: its effect is in the robot's PD, which --torque-control moves into the log")
+        if skipped(args, name, over):
             continue
         write_log(root / f"{i}.csv", log_spec(args, seed + i, over))
         path, _ = import_log(root / f"{i}.csv", root / f"d{i}", import_config(args))

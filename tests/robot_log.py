@@ -17,7 +17,7 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 
 from acn.toolkit.robot import STANCE, URDF_JOINT, urdf_path
-from acn.toolkit.state import FOOT_NAMES, JOINT_NAMES, STATE_NAMES
+from acn.toolkit.state import FOOT_NAMES, JOINT_NAMES, SLICES, STATE_NAMES
 
 G = 9.81
 NOISE = {"base_pos": 0.002, "base_rpy": 0.004, "joint_pos": 0.002, "base_linvel": 0.03, "base_angvel": 0.03,
@@ -171,7 +171,7 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
             if s.feedback:
                 a = a + _level(state, s.feedback)
             if s.torque_control:  # the PD on the readings, in the controller: the action is its torque
-                q_read, qd_read = state[6:18], state[24:36]
+                q_read, qd_read = state[SLICES["joint_pos"]], state[SLICES["joint_vel"]]
                 a = s.kp * (a - q_read) - s.kd * qd_read  # unclipped: the motor limits it
             for name, v in zip(STATE_NAMES, state):
                 rows[name].append(v)
