@@ -17,7 +17,7 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 
 from acn.toolkit.robot import STANCE, URDF_JOINT, urdf_path
-from acn.toolkit.state import FOOT_NAMES, JOINT_NAMES, SLICES, STATE_NAMES
+from acn.toolkit.state import FOOT_NAMES, GROUPS, JOINT_NAMES, SLICES, STATE_NAMES
 
 G = 9.81
 NOISE = {"base_pos": 0.002, "base_rpy": 0.004, "joint_pos": 0.002, "base_linvel": 0.03, "base_angvel": 0.03,
@@ -95,8 +95,8 @@ def _level(measured: np.ndarray, gain: float) -> np.ndarray:
     (pitch + 0.1 pitch rate) at the front (- at the rear), m (half the hip spans, so a tilt is
     levelled in about one step), by opening the knee (calf + e / 0.143 rad, the leg's length
     changing 0.143 m per rad of calf at the stance) and turning the thigh back by half that."""
-    roll, pitch = measured[3], measured[4]
-    wx, wy = measured[21], measured[22]
+    roll, pitch = measured[SLICES["base_rpy"]][:2]
+    wx, wy = measured[SLICES["base_angvel"]][:2]
     out = np.zeros(12)
     for leg, (left, front) in enumerate(((-1, 1), (1, 1), (-1, -1), (1, -1))):   # FR, FL, RR, RL
         e = gain * (-0.13 * left * (roll + 0.1 * wx) + 0.18 * front * (pitch + 0.1 * wy))
@@ -120,13 +120,14 @@ def _as_marker(state: np.ndarray, rot: np.ndarray, marker: np.ndarray) -> np.nda
     r_o = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]]) @ np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
     quat = np.empty(4)
     mujoco.mju_mat2Quat(quat, (rot @ r_o).ravel())
-    v, w, acc = state[18:21], state[21:24], state[40:43]
+    pos, rpy, lin, ang, imu = (SLICES[g] for g in ("base_pos", "base_rpy", "base_linvel", "base_angvel", "imu_acc"))
+    v, w, acc = state[lin], state[ang], state[imu]
     out = state.copy()
-    out[0:3] = state[0:3] + rot @ d
-    out[3:6] = _rpy(quat)
-    out[18:21] = r_o.T @ (v + np.cross(w, d))
-    out[21:24] = r_o.T @ w
-    out[40:43] = r_o.T @ acc
+    out[pos] = state[pos] + rot @ d
+    out[rpy] = _rpy(quat)
+    out[lin] = r_o.T @ (v + np.cross(w, d))
+    out[ang] = r_o.T @ w
+    out[imu] = r_o.T @ acc
     return out
 
 
@@ -203,8 +204,6 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
 
 def _noise(s: LogSpec) -> np.ndarray:
     """(rows, 43) sensor noise of every logged state, per channel group ``NOISE`` x ``s.noise``."""
-    from acn.toolkit.state import GROUPS
-
     rows = s.episodes * int(s.seconds * s.control_hz)
     out = np.zeros((rows, len(STATE_NAMES)))
     if s.noise:
