@@ -58,6 +58,28 @@ _positive_float = _number(float, 0, inclusive=False)
 _nonneg_float = _number(float, 0, inclusive=True)
 
 
+def _joint_gains(minimum: float, inclusive: bool) -> Callable[[str], "float | tuple[float, ...]"]:
+    """An argparse type for a PD gain: one number for every joint, three (hip, thigh, calf: the
+    same on every leg) or twelve (the schema's joint order FR, FL, RR, RL; hip, thigh, calf)."""
+    number = _number(float, minimum, inclusive)
+
+    def parse(text: str):
+        values = [number(t.strip()) for t in text.split(",")]
+        if len(values) == 1:
+            return values[0]
+        if len(values) == 3:
+            return tuple(values * 4)
+        if len(values) == 12:
+            return tuple(values)
+        raise argparse.ArgumentTypeError(f"expected 1, 3 (hip,thigh,calf) or 12 comma-separated numbers, "
+                                         f"got {len(values)} in {text!r}")
+
+    return parse
+
+
+_GAINS_HELP = "; one number for every joint, or hip,thigh,calf (every leg), or 12 in the order FR, FL, RR, RL"
+
+
 # ----------------------------------------------------------------------------- --ray (optional extra)
 def _add_ray_arguments(p: argparse.ArgumentParser, what: str) -> None:
     p.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
@@ -122,8 +144,8 @@ def collect_parser() -> argparse.ArgumentParser:
                    help="position: joint targets, PD at the physics rate; torque: joint torques")
     p.add_argument("--control-hz", type=_positive_int, default=50)
     p.add_argument("--physics-hz", type=_positive_int, default=1000)
-    p.add_argument("--kp", type=_positive_float, default=60.0, help="PD stiffness, N m/rad")
-    p.add_argument("--kd", type=_positive_float, default=1.5, help="PD damping, N m s/rad")
+    p.add_argument("--kp", type=_joint_gains(0, False), default=60.0, help="PD stiffness, N m/rad" + _GAINS_HELP)
+    p.add_argument("--kd", type=_joint_gains(0, False), default=1.5, help="PD damping, N m s/rad" + _GAINS_HELP)
     p.add_argument("--torque-limit", type=_positive_float, default=33.5, help="N m, every joint")
     p.add_argument("--corrector", type=Path, default=None,
                    help="frozen corrector directory (acn-fit output) applied to the target's actions")
@@ -499,8 +521,9 @@ def import_parser() -> argparse.ArgumentParser:
     p.add_argument("log", type=Path, help="the log file (.csv or .parquet)")
     p.add_argument("--out", required=True, type=Path, help="dataset directory to create")
     p.add_argument("--control-hz", required=True, type=_positive_int, help="control rate the log was recorded at")
-    p.add_argument("--kp", required=True, type=_nonneg_float, help="joint PD stiffness the robot ran with, N m/rad")
-    p.add_argument("--kd", required=True, type=_nonneg_float, help="joint PD damping, N m s/rad")
+    p.add_argument("--kp", required=True, type=_joint_gains(0, True),
+                   help="joint PD stiffness the robot ran with, N m/rad" + _GAINS_HELP)
+    p.add_argument("--kd", required=True, type=_joint_gains(0, True), help="joint PD damping, N m s/rad" + _GAINS_HELP)
     p.add_argument("--torque-limit", required=True, type=_positive_float, help="N m, every joint")
     p.add_argument("--action-mode", default="position", choices=ACTION_MODES)
     p.add_argument("--physics-hz", type=_positive_int, default=1000, help="physics rate a model simulates it at")

@@ -32,8 +32,8 @@ class LogSpec:
     controller: str = "sines"            # "sines": random smooth joint targets; "pace": lateral-pair gait
     control_hz: int = 50
     physics_hz: int = 1000
-    kp: float = 60.0
-    kd: float = 1.5
+    kp: float | tuple[float, ...] = 60.0  # N m/rad: every joint, or 12 in JOINT_NAMES order
+    kd: float | tuple[float, ...] = 1.5
     torque_limit: float = 33.5
     latency_steps: int = 0               # physics steps a command arrives late
     strength: float = 1.0                # torque produced / commanded
@@ -145,6 +145,7 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
     foot_of_body = np.full(m.nbody, -1)  # body id -> foot index (-1: not a foot)
     foot_of_body[feet] = np.arange(len(feet))
     offset = np.zeros(12) if s.encoder_offset is None else np.asarray(s.encoder_offset, float)
+    kp, kd = np.asarray(s.kp, float), np.asarray(s.kd, float)
     sub = s.physics_hz // s.control_hz
     rng = np.random.default_rng(s.seed)
     noise = _noise(s)                    # (rows, 43): drawn up front, so the controller sees what is logged
@@ -173,7 +174,7 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
                 a = a + _level(state, s.feedback)
             if s.torque_control:  # the PD on the readings, in the controller: the action is its torque
                 q_read, qd_read = state[SLICES["joint_pos"]], state[SLICES["joint_vel"]]
-                a = s.kp * (a - q_read) - s.kd * qd_read  # unclipped: the motor limits it
+                a = kp * (a - q_read) - kd * qd_read  # unclipped: the motor limits it
             for name, v in zip(STATE_NAMES, state):
                 rows[name].append(v)
             for j, v in zip(JOINT_NAMES, a):
@@ -192,7 +193,7 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
                     err = cmd - q
                     if s.deadband:
                         err = np.sign(err) * np.maximum(np.abs(err) - s.deadband / 2, 0.0)
-                    tau = np.clip(s.gains[0] * s.kp * err - s.gains[1] * s.kd * qd, -s.torque_limit, s.torque_limit)
+                    tau = np.clip(s.gains[0] * kp * err - s.gains[1] * kd * qd, -s.torque_limit, s.torque_limit)
                 d.ctrl[:] = s.strength * tau
                 mujoco.mj_step(m, d)
                 pairs = d.contact.geom[: d.ncon]  # (ncon, 2) geom ids; a foot touches where it meets the floor

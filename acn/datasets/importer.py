@@ -36,6 +36,7 @@ import numpy as np
 from acn.datasets import checks, schema
 from acn.errors import UserError
 from acn.jsonfile import read_json
+from acn.toolkit.backends.base import joint_gains
 from acn.toolkit.collector import FALL_RULE, Episode, Trace, fallen
 from acn.toolkit.robot import ModelParams
 from acn.toolkit.rotations import quat_to_rpy, rpy_to_matrices
@@ -55,14 +56,20 @@ class ImportConfig:
     """Control settings of the logged robot (recorded in the metadata) and import options."""
 
     control_hz: int
-    kp: float
-    kd: float
+    kp: float | tuple[float, ...]  # N m/rad: every joint, or 12 in JOINT_NAMES order
+    kd: float | tuple[float, ...]  # N m s/rad
     torque_limit: float
     action_mode: str = "position"
     physics_hz: int = 1000
     dt_tolerance: float = 0.1  # fraction of the control period a time step may deviate
     linvel_frame: str = "body"  # the frame the log's base_linvel is in (world: rotated into the body frame)
     angvel_frame: str = "body"  # the same for base_angvel
+
+
+def _json_gains(value) -> float | list[float]:
+    """A gain for the metadata: one number, or the 12 per joint where they differ."""
+    g = joint_gains(value)
+    return list(g) if isinstance(g, tuple) else g
 
 
 @dataclass
@@ -204,7 +211,8 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
         "format_version": schema.FORMAT_VERSION, "paired": False,
         "source": {"simulator": "log", "version": None, "file": log.name}, "target": None,
         "physics_dt": 1.0 / cfg.physics_hz, "substeps": cfg.physics_hz // cfg.control_hz,
-        "control_hz": float(cfg.control_hz), "action_mode": cfg.action_mode, "kp": cfg.kp, "kd": cfg.kd,
+        "control_hz": float(cfg.control_hz), "action_mode": cfg.action_mode,
+        "kp": _json_gains(cfg.kp), "kd": _json_gains(cfg.kd),
         "torque_limit": cfg.torque_limit, "model_params": ModelParams().as_json(), "policy": "log",
         "seed": None, "corrector": None, "state_names": list(STATE_NAMES), "action_names": list(ACTION_NAMES),
         "fall_rule": FALL_RULE, "missing_channels": missing, "effort_logged": has_effort,

@@ -60,6 +60,12 @@ def _number(positive: bool):
     return ok
 
 
+def _gains(v) -> bool:
+    """A PD gain: a number >= 0 for every joint, or a list of 12 (one per joint)."""
+    values = v if isinstance(v, list) and len(v) == ACTION_DIM else [v]
+    return all(_number(False)(x) for x in values)
+
+
 def _simulator(v) -> bool:
     return isinstance(v, dict) and isinstance(v.get("simulator"), str)
 
@@ -73,8 +79,8 @@ REQUIRED = {
     "substeps": (lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 1, "a whole number >= 1"),
     "control_hz": (_number(True), "a number > 0 (Hz)"),
     "action_mode": (lambda v: v in ("position", "torque"), '"position" or "torque"'),
-    "kp": (_number(False), "a number >= 0"),
-    "kd": (_number(False), "a number >= 0"),
+    "kp": (_gains, f"a number >= 0 or a list of {ACTION_DIM} (one per joint)"),
+    "kd": (_gains, f"a number >= 0 or a list of {ACTION_DIM} (one per joint)"),
     "torque_limit": (_number(True), "a number > 0 (N m)"),
     "model_params": (lambda v: isinstance(v, dict), "an object"),
     "policy": (lambda v: isinstance(v, str), "a name"),

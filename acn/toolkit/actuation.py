@@ -28,6 +28,11 @@ import numpy as np
 from acn.toolkit.state import NUM_JOINTS
 
 
+def per_joint(value) -> np.ndarray:
+    """(12,) values of a control setting given once (a number) or per joint (12 numbers)."""
+    return np.broadcast_to(np.asarray(value, dtype=float), (NUM_JOINTS,)).copy()
+
+
 @dataclass(frozen=True)
 class Actuation:
     """The resolved control law of one model; per-joint (12,) arrays, see module docstring."""
@@ -49,7 +54,7 @@ class Actuation:
         p = config.params
         limit = config.torque_limit if p.torque_limit is None else p.torque_limit
         ones = np.ones(NUM_JOINTS)
-        return cls(mode=config.action_mode, kp=config.kp * p.kp_scale, kd=config.kd * p.kd_scale,
+        return cls(mode=config.action_mode, kp=per_joint(config.kp) * p.kp_scale, kd=per_joint(config.kd) * p.kd_scale,
                    limit=limit * ones, strength=p.motor_strength.copy(), offset=p.encoder_offset.copy(),
                    deadband=p.backlash / 2.0, latency=float(p.latency), physics_dt=config.physics_dt,
                    substeps=config.substeps)

@@ -14,6 +14,7 @@ import numpy as np
 
 from acn.models.diagnose.compare import Comparison
 from acn.models.diagnose.problem import Problem
+from acn.toolkit.backends.base import pd_torque
 from acn.toolkit.state import FOOT_NAMES, JOINT_NAMES, SLICES
 
 TREND = 0.3  # rank correlation from which a trend is worth saying
@@ -86,8 +87,7 @@ def breakdown(problem: Problem, comparison: Comparison) -> dict:
     effort = d.effort[rows]
     if not np.isfinite(effort).all():
         c = problem.control
-        effort = a if c.action_mode == "torque" else np.clip(c.kp * (a - q) - c.kd * qd, -c.torque_limit,
-                                                             c.torque_limit)
+        effort = a if c.action_mode == "torque" else pd_torque(a, q, qd, c)
     against = {"joint_speed": np.abs(qd), "torque": np.abs(effort), "action_change": np.abs(a - prev)}
     trends = {k: {"rank_correlation": _spearman(v.ravel(), je.ravel()), "bins": _binned(v.ravel(), je.ravel())}
               for k, v in against.items()}

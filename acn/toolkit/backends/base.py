@@ -14,7 +14,8 @@ computes the IMU, validates actions and detects blow-ups. Each backend implement
                           applied joint torque over them.
 
 Control law (identical in both backends, ``acn.toolkit.actuation``). Nominal ``position`` mode:
-at every physics step ``tau = clip(kp * (q_target - q) - kd * qdot, -limit, limit)``. ``torque``
+at every physics step ``tau = clip(kp * (q_target - q) - kd * qdot, -limit, limit)``, with one
+gain for every joint or one per joint (``JointGains``). ``torque``
 mode: the action is a joint torque, clipped to the same limit and held over the control step.
 Physical effects in ``SimConfig.params`` change this law (latency, gains, strength, limits,
 encoder offsets, dead band) the same way in both backends.
@@ -34,13 +35,24 @@ from typing import ClassVar, Literal
 import numpy as np
 
 from acn.toolkit import frames
-from acn.toolkit.actuation import Actuation
+from acn.toolkit.actuation import Actuation, per_joint
 from acn.toolkit.robot import GRAVITY, STANCE, STANDING_HEIGHT, ModelParams
 from acn.toolkit.rotations import quat_to_matrix, quat_to_rpy, rpy_to_quat
 from acn.toolkit.state import ACTION_DIM, DYNAMIC_GROUPS, FOOT_NAMES, NUM_JOINTS, SLICES, STATE_DIM
 
 ActionMode = Literal["position", "torque"]
 ACTION_MODES: tuple[str, ...] = ("position", "torque")
+JointGains = float | tuple[float, ...]  # one value for every joint, or 12 in ``JOINT_NAMES`` order
+
+
+def joint_gains(value) -> JointGains:
+    """A number stays a number; 12 values become a tuple of floats (one number if all are equal)."""
+    if isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool):
+        return float(value)
+    values = tuple(float(v) for v in np.asarray(value, dtype=float).ravel())
+    if len(values) != NUM_JOINTS:
+        raise ValueError(f"gains are one number or {NUM_JOINTS} (one per joint), got {len(values)}")
+    return values[0] if len(set(values)) == 1 else values
 
 
 class SimulationDiverged(RuntimeError):
@@ -54,10 +66,13 @@ class SimConfig:
     physics_dt: float = 0.001     # s, one physics step (1 kHz)
     substeps: int = 20            # physics steps per control step (50 Hz control)
     action_mode: ActionMode = "position"
-    kp: float = 60.0              # N m/rad, position-mode PD stiffness
-    kd: float = 1.5               # N m s/rad, position-mode PD damping
+    kp: JointGains = 60.0         # N m/rad, position-mode PD stiffness (every joint, or per joint)
+    kd: JointGains = 1.5          # N m s/rad, position-mode PD damping (every joint, or per joint)
     torque_limit: float = 33.5    # N m, applied to every joint in both modes
     params: ModelParams = field(default_factory=ModelParams)
+
+    def __post_init__(self) -> None:
+        self.kp, self.kd = joint_gains(self.kp), joint_gains(self.kd)
 
     @property
     def control_dt(self) -> float:
@@ -70,13 +85,13 @@ class SimConfig:
             raise ValueError(f"physics_dt must be in (0, 0.01] s, got {self.physics_dt}")
         if self.substeps < 1:
             raise ValueError(f"substeps must be >= 1, got {self.substeps}")
-        if self.kp < 0 or self.kd < 0 or self.torque_limit <= 0:
+        if (per_joint(self.kp) < 0).any() or (per_joint(self.kd) < 0).any() or not self.torque_limit > 0:
             raise ValueError("kp and kd must be >= 0 and torque_limit > 0")
 
 
 def pd_torque(target: np.ndarray, q: np.ndarray, qd: np.ndarray, cfg: SimConfig) -> np.ndarray:
     """The position-mode control law, N m (see module docstring)."""
-    return np.clip(cfg.kp * (target - q) - cfg.kd * qd, -cfg.torque_limit, cfg.torque_limit)
+    return np.clip(per_joint(cfg.kp) * (target - q) - per_joint(cfg.kd) * qd, -cfg.torque_limit, cfg.torque_limit)
 
 
 # A state is "absurd" (the simulator blew up) beyond these bounds.
