@@ -20,6 +20,7 @@ from acn.toolkit.robot import STANCE, URDF_JOINT, urdf_path
 from acn.toolkit.state import FOOT_NAMES, GROUPS, JOINT_NAMES, SLICES, STATE_NAMES
 
 G = 9.81
+GLITCH = 30.0  # a glitch's size, multiple of NOISE
 NOISE = {"base_pos": 0.002, "base_rpy": 0.004, "joint_pos": 0.002, "base_linvel": 0.03, "base_angvel": 0.03,
          "joint_vel": 0.08, "imu_acc": 0.15}  # typical sensor noise (std) per channel group, SI units
 
@@ -44,6 +45,10 @@ class LogSpec:
     marker: tuple[float, ...] | None = None  # (x, y, z) m [, roll, pitch rad]: the trunk logged as a
     # motion-capture body at that place in the trunk frame, tilted so (extrinsic XYZ)
     noise: float = 0.0                   # multiple of NOISE
+    glitches: float = 0.0                # share of rows in which one reading (not a contact flag) is off by
+    # GLITCH x its group's NOISE, either sign: a corrupted sensor packet
+    stale: float = 0.0                   # share of rows whose readings repeat the previous row's (a message
+    # that did not arrive; the controller acts on the repeated reading too)
     feedback: float = 0.0                # gain multiple of an attitude feedback (``_level``) the controller adds,
     # on the measured (noisy) roll, pitch and gyro: the log's actions then depend on its sensor noise
     torque_control: bool = False         # the controller runs the PD itself, on the MEASURED (noisy) joint
@@ -149,6 +154,8 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
     sub = s.physics_hz // s.control_hz
     rng = np.random.default_rng(s.seed)
     noise = _noise(s)                    # (rows, 43): drawn up front, so the controller sees what is logged
+    stale = np.random.default_rng(s.seed + 2000).random(len(noise)) < s.stale
+    logged = None
     rows: dict[str, list] = {k: [] for k in ("episode_index", "timestamp", *STATE_NAMES,
                                              *(f"action.{j}" for j in JOINT_NAMES))}
     for ep in range(s.episodes):
@@ -168,7 +175,9 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
                                     d.qvel[3:6], d.qvel[dadr], touching, rot.T @ acc])
             if s.marker is not None:
                 state = _as_marker(state, rot, np.asarray(s.marker, float))
-            state = state + noise[len(rows["timestamp"])]
+            row = len(rows["timestamp"])
+            state = logged if stale[row] and k > 0 else state + noise[row]
+            logged = state
             a = target(k / s.control_hz)
             if s.feedback:
                 a = a + _level(state, s.feedback)
@@ -212,6 +221,12 @@ def _noise(s: LogSpec) -> np.ndarray:
         for g, sd in NOISE.items():
             for name in GROUPS[g]:
                 out[:, STATE_NAMES.index(name)] = noise_rng.normal(0, sd * s.noise, rows)
+    if s.glitches:
+        rng = np.random.default_rng(s.seed + 3000)
+        channels = [(STATE_NAMES.index(n), sd) for g, sd in NOISE.items() for n in GROUPS[g]]
+        for r in np.flatnonzero(rng.random(rows) < s.glitches):
+            c, sd = channels[rng.integers(len(channels))]
+            out[r, c] += rng.choice((-1.0, 1.0)) * GLITCH * sd
     return out
 
 

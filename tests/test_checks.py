@@ -71,6 +71,14 @@ def _shift(name, value):
     return change
 
 
+def _held(names, every: int):
+    """A sensor ``every`` times slower than the log: its reading held for ``every`` rows."""
+    def change(c):
+        for n in names:
+            c[n] = c[n][np.arange(len(c[n])) // every * every]
+    return change
+
+
 CALVES = [f"{j}_{k}" for j in JOINT_NAMES if "calf" in j for k in ("pos", "vel")] + \
     [f"action.{j}" for j in JOINT_NAMES if "calf" in j]
 
@@ -87,6 +95,9 @@ CORRUPTIONS = {
     "gravity removed from the accelerometer": (_shift("imu_acc_z", -9.81), "accelerometer", "gravity removed"),
     "actions as offsets from the stance": (_offsets, "action.FR_thigh", "offsets from a nominal pose"),
     "contact forces instead of flags": (_scale(GROUPS["contact"], 80.0), "contact", "0/1 flags"),
+    "an IMU at half the log's rate": (_held(GROUPS["imu_acc"] + GROUPS["base_angvel"], 2),
+                                      "base_angvel, imu_acc repeat the previous row's values exactly",
+                                      "slower than the log"),
 }
 
 

@@ -15,7 +15,10 @@ that must agree by the schema's definitions (``acn.toolkit.state``), never with 
 - ``stance_feet``: feet the log marks as touching the ground (or the lowest foot) at ground
   height, by forward kinematics of the trunk pose and joint angles;
 - ``accelerometer``: its mean reads +9.81 m/s^2 on z for a level trunk (gravity included);
-- ``contacts``: 0/1 flags; ``actions``: position targets near the joint angles they drive.
+- ``contacts``: 0/1 flags; ``actions``: position targets near the joint angles they drive;
+- ``repeats``: a sensor group whose readings equal the previous row's exactly, for one to
+  ``REPEAT_RUN`` rows of a signal that moves before and after (a message that did not arrive and
+  was logged again, or a sensor slower than the log; longer runs are a robot at rest).
 
 Findings are warnings, one line each with the fix where one is known: ``acn-import`` prints
 them and records them in the dataset's metadata; ``acn-diagnose`` repeats them.
@@ -42,6 +45,10 @@ GRAVITY = 9.81
 # Stance feet by forward kinematics on consistent logs (both simulators, robot_log.py at up to 3x
 # its typical sensor noise): median height within +-0.3 cm, 10-90 % range at most 2.2 cm.
 STANCE_MEDIAN, STANCE_SPREAD = 0.015, 0.04  # m
+REPEAT_RUN = 3         # at most this many rows equal to the one before count as repeated readings
+REPEAT_SHARE = 0.01    # a sensor group with more repeated rows than this is a finding
+MOVING = 1e-5          # SI units: a signal that changes less than this after a run is at rest (float32 steps)
+SENSOR_GROUPS = ("base_pos", "base_rpy", "joint_pos", "base_linvel", "base_angvel", "joint_vel", "imu_acc")
 
 
 @dataclass(frozen=True)
@@ -73,15 +80,33 @@ def check(episodes: list[Episode], dt: float, action_mode: str = "position") -> 
     out += velocities(episodes, dt, suspect) + stance_feet(states) + accelerometer(states) + contacts(states)
     if action_mode == "position":
         out += actions(episodes)
-    return out
+    return out + repeats(episodes)
+
+
+def _runs(m: Measurements) -> list[tuple[int, int]]:
+    """Row ranges [a, b) of consecutive transitions of one episode."""
+    linked = (m.episode[1:] == m.episode[:-1]) & (m.frame[1:] == m.frame[:-1] + 1)
+    starts = np.concatenate([[0], np.flatnonzero(~linked) + 1, [len(m)]])
+    return list(zip(starts[:-1].tolist(), starts[1:].tolist()))
 
 
 def from_measurements(m: Measurements) -> list[Finding]:
     """``check`` on ``acn.datasets.measurements.Measurements`` (rows of an episode consecutive)."""
-    linked = (m.episode[1:] == m.episode[:-1]) & (m.frame[1:] == m.frame[:-1] + 1)
-    starts = np.concatenate([[0], np.flatnonzero(~linked) + 1, [len(m)]])
-    episodes = [(np.vstack([m.state[a:b], m.next_state[b - 1:b]]), m.action[a:b]) for a, b in zip(starts[:-1], starts[1:])]
+    episodes = [(np.vstack([m.state[a:b], m.next_state[b - 1:b]]), m.action[a:b]) for a, b in _runs(m)]
     return check(episodes, m.control.control_dt, m.control.action_mode)
+
+
+def repeated_transitions(m: Measurements, groups=SENSOR_GROUPS) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) masks: row t's start state, and its next state, repeat a reading of ``groups``
+    (``repeated``)."""
+    start, end = np.zeros(len(m), dtype=bool), np.zeros(len(m), dtype=bool)
+    for a, b in _runs(m):
+        states = np.vstack([m.state[a:b], m.next_state[b - 1:b]])
+        rep = np.zeros(len(states), dtype=bool)
+        for g in groups:
+            rep |= repeated(states, g)
+        start[a:b], end[a:b] = rep[:-1], rep[1:]
+    return start, end
 
 
 # ----- velocities against the rate of change of positions -------------------------------------
@@ -324,6 +349,42 @@ def contacts(states: np.ndarray) -> list[Finding]:
     names = tuple(n for n, _ in bad)
     return [Finding("contacts", names, f"{_names(names)} should be 0/1 flags (1: touching the ground) but reach "
                     f"{max(v for _, v in bad):.3g}: forces? map them with \"threshold\": a force between swing and stance")]
+
+
+def repeated(states: np.ndarray, group: str) -> np.ndarray:
+    """(n,) True where ``group``'s readings in consecutive ``states`` (n, 43) of one episode equal
+    the previous row's exactly, in a run of at most ``REPEAT_RUN`` such rows after which the
+    signal moves again (by more than ``MOVING``): a reading that did not arrive. Longer runs, and
+    changes within float32's resolution, are a robot at rest."""
+    x = states[:, SLICES[group]]
+    same = np.r_[False, (x[1:] == x[:-1]).all(1) & np.isfinite(x[1:]).all(1)]
+    edges = np.diff(np.r_[0, same.astype(np.int8), 0])
+    out = np.zeros(len(x), dtype=bool)
+    for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):  # runs same[a:b]
+        if b - a <= REPEAT_RUN and b < len(x) and np.abs(x[b] - x[a]).max() > MOVING:
+            out[a:b] = True
+    return out
+
+
+def repeats(episodes: list[Episode]) -> list[Finding]:
+    """One finding naming the sensor groups whose readings repeat the previous row's
+    (``repeated``) in more than ``REPEAT_SHARE`` of the rows."""
+    rows = sum(len(s) for s, _ in episodes)
+    share = {g: sum(int(repeated(s, g).sum()) for s, _ in episodes) / max(rows, 1) for g in SENSOR_GROUPS}
+    bad = [g for g in SENSOR_GROUPS if share[g] > REPEAT_SHARE]
+    if not bad:
+        return []
+    lo, hi = min(share[g] for g in bad), max(share[g] for g in bad)
+    how = f"{lo:.0%}" if round(lo, 2) == round(hi, 2) else f"{lo:.0%}-{hi:.0%}"
+    what = ", ".join(bad) if len(bad) < len(SENSOR_GROUPS) else "every sensor group"
+    return [Finding("repeats", tuple(c for g in bad for c in GROUPS[g]),
+                    f"{what} repeat{'s' if len(bad) == 1 else ''} the previous row's values exactly in {how} of the "
+                    "rows (runs of 1-3 in a moving signal): readings that did not arrive, or a sensor slower than the "
+                    "log; the diagnosis leaves out the steps that start or end on them")]
+
+
+LEFT_OUT = ("repeats",)  # checks whose rows the diagnosis leaves out (acn.models.diagnose.problem), so their
+# findings do not make a verdict's data suspect
 
 
 def actions(episodes: list[Episode]) -> list[Finding]:

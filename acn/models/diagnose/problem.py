@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from acn.datasets import checks
 from acn.datasets.measurements import Measurements, fill_derived
 from acn.datasets.reader import state_difference
 from acn.errors import UserError
@@ -171,6 +172,7 @@ def prepare(data: Measurements, model: Model, cfg: DiagnoseConfig) -> Problem:
     ok = np.zeros(len(data), dtype=bool)  # a complete start state and a measured state one step (unit) later
     one_step = data.windows(unit)
     ok[one_step] = finite[one_step] & np.isfinite(data.next_state[one_step + unit - 1][:, channels]).all(1)
+    ok &= _fresh(data, one_step, unit, derived, ok)
     history = int(math.ceil(MAX_LATENCY / data.control.control_dt)) + 1
     fit_rows, held_rows = np.flatnonzero(ok & ~held), np.flatnonzero(ok & held)
     if min(len(fit_rows), len(held_rows)) < 8:
@@ -179,6 +181,18 @@ def prepare(data: Measurements, model: Model, cfg: DiagnoseConfig) -> Problem:
     return Problem(data=data, control=data.control, backend=model.backend, channels=channels, scale=scale,
                    fit_rows=fit_rows, held_rows=held_rows, history=history,
                    derived=derived, threads=cfg.threads, seed=cfg.seed, unit=unit)
+
+
+def _fresh(data: Measurements, one_step: np.ndarray, unit: int, derived: list[str], ok: np.ndarray) -> np.ndarray:
+    """(N,) False for steps that start or end on a repeated reading (``checks.repeated``: a
+    message that did not arrive, logged again), whose transition is not the one the actions
+    drove; all True where leaving them out would drop more than half of the steps (a sensor
+    slower than the log repeats every other row: its finding says so)."""
+    groups = [g for g in checks.SENSOR_GROUPS if not set(GROUPS[g]) & set(derived)]
+    start, end = checks.repeated_transitions(data, groups)
+    fresh = np.zeros(len(data), dtype=bool)
+    fresh[one_step] = ~start[one_step] & ~end[one_step + unit - 1]
+    return fresh if (fresh & ok).sum() >= 0.5 * ok.sum() else np.ones(len(data), dtype=bool)
 
 
 def _dynamic() -> np.ndarray:
