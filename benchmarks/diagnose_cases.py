@@ -25,6 +25,10 @@ With ``--control-hz HZ``, the logs are recorded at that control rate (default 50
 200 Hz or more: at 50-100 Hz the held torques make the robot oscillate and fall). The cases
 whose effect lives in the robot's PD (``pd_gains``, ``backlash``) are skipped then.
 
+With ``--stale S`` and ``--glitches G``, a share S of the rows repeats the previous row's
+readings (a message that did not arrive, logged again; the controller acts on it too) and a
+share G has one reading off by 30x its noise (a corrupted packet).
+
 With ``--pairs``, logs with TWO hidden effects instead (``--auto``), one line each and:
 
 - ``pairs_both_named``: both hidden effects added, and nothing else;
@@ -168,7 +172,7 @@ def log_spec(args, seed: int, over: dict) -> LogSpec:
     """The log of one case under the command line's recording options."""
     return LogSpec(seconds=args.seconds, episodes=args.episodes, seed=seed, noise=args.noise, feedback=args.feedback,
                    drop=dropped(args), control_hz=args.control_hz, torque_control=args.torque_control,
-                   **{"controller": "sines", **over})
+                   stale=args.stale, glitches=args.glitches, **{"controller": "sines", **over})
 
 
 def import_config(args) -> ImportConfig:
@@ -230,6 +234,10 @@ def main() -> None:
     ap.add_argument("--control-hz", type=int, default=50, help="the logs' control rate")
     ap.add_argument("--torque-control", action="store_true",
                     help="the controller runs the PD on its noisy readings and logs torques (use >= 200 Hz)")
+    ap.add_argument("--stale", type=float, default=0.0,
+                    help="share of rows whose readings repeat the previous row's (a message that did not arrive)")
+    ap.add_argument("--glitches", type=float, default=0.0,
+                    help="share of rows with one reading off by robot_log.GLITCH x its noise (a corrupted packet)")
     args = ap.parse_args()
     root = Path(tempfile.mkdtemp())
     cases, seed = (PAIRS, 300) if args.pairs else (OTHER, 700) if args.other else (CASES, 100)
