@@ -370,6 +370,26 @@ def test_repeated_and_corrupted_readings_leave_the_damping_found(tmp_path):
     assert "the steps the repeats data check names were left out" in d.reason and "fix the data" not in d.reason
 
 
+def test_one_weak_motor_is_found_where_a_shared_strength_is_not_significant(tmp_path):
+    """One motor (FR_calf) at half strength: fitted as one strength for every joint it is 0.915,
+    not significant, and nothing plausible is. The finer look fits the per-joint candidates per
+    joint type and per leg, --auto refines that to the joint, and the weak motor is named."""
+    from acn.datasets.importer import ImportConfig, import_log
+
+    strength = np.ones(12)
+    strength[JOINT_NAMES.index("FR_calf")] = 0.5
+    write_log(tmp_path / "log.csv", LogSpec(noise=1.0, seed=41, strength=strength))
+    path, _ = import_log(tmp_path / "log.csv", tmp_path / "log", ImportConfig(50, 60.0, 1.5, 33.5))
+    cfg = replace(FAST, candidates=("motor_strength", "joint_damping", "payload", "armature"), auto_alternatives=0)
+    d = diagnose(load_measurements(path), Model.parse("mujoco"), cfg, automatic=True)
+    first = d.ranking[0]
+    assert first.name == "motor_strength" and first.fit.granularity in ("type", "leg"), (first.name, d.reason)
+    assert [a.name for a in d.added] == ["motor_strength"] and d.verdict == "effect", d.reason
+    scale = np.asarray(d.added[0].fit.values["scale"])
+    assert abs(scale[JOINT_NAMES.index("FR_calf")] - 0.5) < 0.075, scale   # measured 0.5035
+    assert np.abs(np.delete(scale, JOINT_NAMES.index("FR_calf")) - 1.0).max() < 0.1, scale
+
+
 def test_a_noisy_log_of_a_motion_capture_body_names_its_frame(tmp_path):
     """A log from other code whose trunk is a motion-capture body 6 cm above the trunk origin,
     tilted, with sensor noise: one-step predictions from its states are wrong in every channel.

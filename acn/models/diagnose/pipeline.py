@@ -37,7 +37,7 @@ from acn.datasets.measurements import Measurements
 from acn.models.diagnose.add import Added, Chain, add_effect, auto, longest_removed
 from acn.models.diagnose.compare import Comparison, compare, floor_of, informative_horizon
 from acn.models.diagnose.problem import DiagnoseConfig, Problem, prepare
-from acn.models.diagnose.rank import (STRUCTURED_SHARE, Candidate, doubt, explained_share, implausible,
+from acn.models.diagnose.rank import (STRUCTURED_SHARE, Candidate, doubt, explained_share, finer_look, implausible,
                                       fits_noise_by_size, one_step_only, rank)
 from acn.models.diagnose.where import breakdown
 from acn.toolkit.effects import Model, get_effect
@@ -210,10 +210,20 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
     ranking = rank(problem, model, cfg, judge_rows, residual, progress=say)
     # The floor: what no regression on the state and actions predicts, of the model's residual
     # or of what the best candidates leave (after the right effect, only noise is left).
-    floors = [floor_of(problem, model, judge_rows, residual)]
-    floors += [floor_of(problem, c.fit.model, judge_rows, c.judgement.residual_after)
-               for c in ranking[:FLOOR_CANDIDATES] if c.judgement.significant and not one_step_only(c)]
-    floor = noise_fitted(min(floors, key=lambda f: float(np.mean(f))), residual, ranking)
+    model_floor = floor_of(problem, model, judge_rows, residual)
+
+    def floor_after(ranking: list[Candidate]) -> np.ndarray:
+        floors = [model_floor] + [floor_of(problem, c.fit.model, judge_rows, c.judgement.residual_after)
+                                  for c in ranking[:FLOOR_CANDIDATES] if c.judgement.significant and not one_step_only(c)]
+        return noise_fitted(min(floors, key=lambda f: float(np.mean(f))), residual, ranking)
+
+    floor = floor_after(ranking)
+    if mse > 0 and 1.0 - float(np.mean(floor)) / mse >= STRUCTURED_SHARE and not any(
+            c.judgement.significant and not doubt(c) and c.judgement.explained(float(np.mean(floor))) >= EFFECT_SHARE
+            for c in ranking):
+        finer = finer_look(problem, model, cfg, judge_rows, residual, ranking, progress=say)
+        if finer is not ranking:
+            ranking, floor = finer, floor_after(finer)
     floor_mse = float(np.mean(floor))
     t2 = time.perf_counter()
     added: list[Added] = []
