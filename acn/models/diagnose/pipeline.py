@@ -213,8 +213,9 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
     model_floor = floor_of(problem, model, judge_rows, residual)
 
     def floor_after(ranking: list[Candidate]) -> np.ndarray:
-        floors = [model_floor] + [floor_of(problem, c.fit.model, judge_rows, c.judgement.residual_after)
-                                  for c in ranking[:FLOOR_CANDIDATES] if c.judgement.significant and not one_step_only(c)]
+        floors = [model_floor] + [
+            floor_of(problem, c.fit.model, judge_rows, c.judgement.residual_after)
+            for c in ranking[:FLOOR_CANDIDATES] if c.judgement.significant and not one_step_only(c)]
         return noise_fitted(min(floors, key=lambda f: float(np.mean(f))), residual, ranking)
 
     floor = floor_after(ranking)

@@ -55,8 +55,7 @@ PARSIMONY_Z = 2.0            # a richer candidate must beat a simpler one by thi
 PARSIMONY_SHARE = 0.9        # and the simpler one remove less than this share of what it removes
 LONGER_MARGIN = 0.05         # of the longest-horizon error: a candidate tied at one step must remove this much more
 READING_TOLERANCE = 0.05     # of the longest-horizon error: what a reading-only effect may add to it (fits_noise)
-FINER = ("type", "leg")     # granularities ``finer_look`` fits per-joint candidates at
-FINER_CANDIDATES = 8        # how many (the best by score): every per-joint one of the catalogue
+FINER = ("type", "leg")     # granularities ``finer_look`` fits the per-joint candidates at
 TOO_SMALL = "fits a value below 3/4 of the smallest realistic magnitude"  # implausible's reason for too_small
 
 
@@ -308,17 +307,18 @@ def order(problem: Problem, model: Model, cfg: DiagnoseConfig, out: list[Candida
 
 def finer_look(problem: Problem, model: Model, cfg: DiagnoseConfig, judge_rows: np.ndarray,
                base_residual: np.ndarray, ranking: list[Candidate], progress=None) -> list[Candidate]:
-    """``ranking`` with its best per-joint candidates (at most ``FINER_CANDIDATES``, by score)
-    fitted again per joint type and per leg (``FINER``), for where no significant, plausible
-    candidate explains most of the error while it is structured (``pipeline.diagnose``). An effect that differs joint by joint can cancel
-    in one shared value: one motor at half strength (FR_calf) was a strength of 0.915 on every
-    joint, z 2.4, and the verdict was unexplained. A finer fit replaces the shared one where it
-    is significant, plausible, and scores higher (its price per parameter included); the
-    ranking is then ordered again."""
-    shared = [c for c in ranking if c.fit.granularity == "shared" and any(p.per_joint for p in c.fit.effect.parameters)]
+    """``ranking`` with its per-joint candidates fitted again per joint type and per leg
+    (``FINER``), for where no significant, plausible candidate explains most of a structured
+    error (``pipeline.diagnose``). An effect that differs joint by joint can cancel in one
+    shared value: one motor at half strength (FR_calf) was a strength of 0.915 on every joint,
+    z 2.4, and the verdict was unexplained. A finer fit replaces the shared one where it is
+    significant, plausible, and scores higher (its price per parameter included); the ranking
+    is then ordered again."""
+    shared = [c for c in ranking
+              if c.fit.granularity == "shared" and any(p.per_joint for p in c.fit.effect.parameters)]
     rows = problem.sample(problem.fit_rows, cfg.rank_rows, salt=3)
     out, changed = list(ranking), False
-    for c in shared[:FINER_CANDIDATES]:
+    for c in shared:
         best = c
         for g in FINER:
             if progress:
