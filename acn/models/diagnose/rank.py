@@ -16,8 +16,8 @@ and without it. A candidate's evidence:
 - ``score``: the share of the whole held-out error it removes, minus a small price per fitted
   parameter (ties go to the simpler effect); it orders candidates as ``explained`` does, and
   still orders them when the error is all noise;
-- ``finer_look``: where no candidate is significant and plausible while the error is
-  structured, the per-joint candidates fitted again per joint type and per leg (one weak motor
+- ``finer_look``: where no significant, plausible candidate explains most of a structured
+  error, the per-joint candidates fitted again per joint type and per leg (one weak motor
   cancels in a strength shared by every joint);
 - ``longer_gain`` (``screen``): how much it lowers the open-loop error at the longest horizon;
   candidates that do not lower it are ranked after the others, and where the one step cannot
