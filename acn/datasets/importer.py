@@ -66,12 +66,6 @@ class ImportConfig:
     angvel_frame: str = "body"  # the same for base_angvel
 
 
-def _json_gains(value) -> float | list[float]:
-    """A gain for the metadata: one number, or the 12 per joint where they differ."""
-    g = joint_gains(value)
-    return list(g) if isinstance(g, tuple) else g
-
-
 @dataclass
 class ImportReport:
     rows: int
@@ -212,7 +206,7 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
         "source": {"simulator": "log", "version": None, "file": log.name}, "target": None,
         "physics_dt": 1.0 / cfg.physics_hz, "substeps": cfg.physics_hz // cfg.control_hz,
         "control_hz": float(cfg.control_hz), "action_mode": cfg.action_mode,
-        "kp": _json_gains(cfg.kp), "kd": _json_gains(cfg.kd),
+        "kp": joint_gains(cfg.kp), "kd": joint_gains(cfg.kd),
         "torque_limit": cfg.torque_limit, "model_params": ModelParams().as_json(), "policy": "log",
         "seed": None, "corrector": None, "state_names": list(STATE_NAMES), "action_names": list(ACTION_NAMES),
         "fall_rule": FALL_RULE, "missing_channels": missing, "effort_logged": has_effort,

@@ -25,12 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from acn.toolkit.robot import per_joint
 from acn.toolkit.state import NUM_JOINTS
-
-
-def per_joint(value) -> np.ndarray:
-    """(12,) values of a control setting given once (a number) or per joint (12 numbers)."""
-    return np.broadcast_to(np.asarray(value, dtype=float), (NUM_JOINTS,)).copy()
 
 
 @dataclass(frozen=True)

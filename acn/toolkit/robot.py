@@ -71,7 +71,9 @@ JOINT_FIELDS = ("joint_damping", "joint_friction", "armature", "motor_strength",
                 "kd_scale", "encoder_offset", "backlash")
 
 
-def _per_joint(value, default: float) -> np.ndarray:
+def per_joint(value, default: float = 0.0) -> np.ndarray:
+    """(12,) values in ``JOINT_NAMES`` order of a setting given once (a number) or per joint
+    (12 numbers); None gives ``default`` on every joint."""
     v = default if value is None else value
     return np.broadcast_to(np.asarray(v, dtype=float), (NUM_JOINTS,)).copy()
 
@@ -125,7 +127,7 @@ class ModelParams:
         for name in JOINT_FIELDS:
             if name == "torque_limit" and self.torque_limit is None:
                 continue
-            setattr(self, name, _per_joint(getattr(self, name), 0.0))
+            setattr(self, name, per_joint(getattr(self, name)))
         self.payload_com = np.broadcast_to(np.asarray(self.payload_com, dtype=float), (3,)).copy()
         self.base_frame_offset = np.broadcast_to(np.asarray(self.base_frame_offset, dtype=float), (6,)).copy()
         self.payload_mass, self.ground_friction = float(self.payload_mass), float(self.ground_friction)

@@ -35,8 +35,8 @@ from typing import ClassVar, Literal
 import numpy as np
 
 from acn.toolkit import frames
-from acn.toolkit.actuation import Actuation, per_joint
-from acn.toolkit.robot import GRAVITY, STANCE, STANDING_HEIGHT, ModelParams
+from acn.toolkit.actuation import Actuation
+from acn.toolkit.robot import GRAVITY, STANCE, STANDING_HEIGHT, ModelParams, per_joint
 from acn.toolkit.rotations import quat_to_matrix, quat_to_rpy, rpy_to_quat
 from acn.toolkit.state import ACTION_DIM, DYNAMIC_GROUPS, FOOT_NAMES, NUM_JOINTS, SLICES, STATE_DIM
 
