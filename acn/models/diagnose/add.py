@@ -27,7 +27,7 @@ from acn.models.diagnose.fitting import (GRANULARITIES, EffectFit, default_granu
                                          refittable)
 from acn.models.diagnose.problem import DiagnoseConfig, Problem
 from acn.models.diagnose.rank import (LARGE_IMPROVEMENT, PARSIMONY_Z, Candidate, Judgement, doubt, fits_noise,
-                                      implausible, judge, paired_z, rank)
+                                      implausible, judge, paired_z, rank, rank_rows)
 from acn.toolkit.effects import Model, get_effect
 
 AUTO_MIN_EXPLAINED = 0.05  # --auto stops when the best candidate explains less of what is left
@@ -66,7 +66,7 @@ def choose_fit(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, j
     """The effect fitted at the coarsest granularity (down to ``cfg.finest``) no finer one
     significantly beats."""
     effect = get_effect(name)
-    rows = problem.sample(problem.fit_rows, cfg.rank_rows, salt=3)
+    rows = rank_rows(problem, cfg)
     best: tuple[EffectFit, Judgement] | None = None
     for g in _granularities(effect, cfg.finest):
         if best is not None and g == "joint" and best[0].granularity == "shared":

@@ -219,13 +219,14 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
         return noise_fitted(min(floors, key=lambda f: float(np.mean(f))), residual, ranking)
 
     floor = floor_after(ranking)
-    if mse > 0 and 1.0 - float(np.mean(floor)) / mse >= STRUCTURED_SHARE and not any(
-            c.judgement.significant and not doubt(c) and c.judgement.explained(float(np.mean(floor))) >= EFFECT_SHARE
+    floor_mse = float(np.mean(floor))
+    if mse > 0 and 1.0 - floor_mse / mse >= STRUCTURED_SHARE and not any(
+            c.judgement.significant and not doubt(c) and c.judgement.explained(floor_mse) >= EFFECT_SHARE
             for c in ranking):
         finer = finer_look(problem, model, cfg, judge_rows, residual, ranking, progress=say)
         if finer is not ranking:
             ranking, floor = finer, floor_after(finer)
-    floor_mse = float(np.mean(floor))
+            floor_mse = float(np.mean(floor))
     t2 = time.perf_counter()
     added: list[Added] = []
     current, current_residual = before, residual

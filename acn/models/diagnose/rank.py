@@ -273,7 +273,7 @@ def judge(problem: Problem, after: Model, rows: np.ndarray, before_residual: np.
 def rank(problem: Problem, model: Model, cfg: DiagnoseConfig, judge_rows: np.ndarray, base_residual: np.ndarray,
          progress=None) -> list[Candidate]:
     """Every candidate effect fitted on fit rows and judged on ``judge_rows``; best first."""
-    fit_rows = problem.sample(problem.fit_rows, cfg.rank_rows, salt=3)
+    fit_rows = rank_rows(problem, cfg)
     out = []
     for i, name in enumerate(cfg.candidates):
         if progress:
@@ -283,6 +283,11 @@ def rank(problem: Problem, model: Model, cfg: DiagnoseConfig, judge_rows: np.nda
                          refit=refittable(model))
         out.append(candidate(problem, fit, judge_rows, base_residual))
     return order(problem, model, cfg, out, progress)
+
+
+def rank_rows(problem: Problem, cfg: DiagnoseConfig) -> np.ndarray:
+    """The fit rows every candidate is fitted on while ranking (the same sample for each)."""
+    return problem.sample(problem.fit_rows, cfg.rank_rows, salt=3)
 
 
 def candidate(problem: Problem, fit: EffectFit, judge_rows: np.ndarray, base_residual: np.ndarray) -> Candidate:
@@ -316,7 +321,7 @@ def finer_look(problem: Problem, model: Model, cfg: DiagnoseConfig, judge_rows: 
     is then ordered again."""
     shared = [c for c in ranking
               if c.fit.granularity == "shared" and any(p.per_joint for p in c.fit.effect.parameters)]
-    rows = problem.sample(problem.fit_rows, cfg.rank_rows, salt=3)
+    rows = rank_rows(problem, cfg)
     out, changed = list(ranking), False
     for c in shared:
         best = c
