@@ -567,6 +567,9 @@ def import_main(argv: list[str] | None = None) -> int:
         print(f"read {r.rows} rows: {r.transitions} transitions in {r.episodes} episode(s); cut {r.cut_nonfinite} "
               f"row(s) with non-finite values, split at {r.time_breaks} wrong time step(s), dropped "
               f"{r.dropped_short} one-row segment(s)")
+        hint = r.tolerance_hint(args.dt_tolerance)
+        if hint:
+            print(hint)
         if r.missing:
             print(f"not in the log (stored as NaN, not compared): {', '.join(r.missing)}")
             if _estimated(r.missing):

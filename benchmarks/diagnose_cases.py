@@ -29,6 +29,10 @@ With ``--stale S`` and ``--glitches G``, a share S of the rows repeats the previ
 readings (a message that did not arrive, logged again; the controller acts on it too) and a
 share G has one reading off by 30x its noise (a corrupted packet).
 
+With ``--jitter J``, the control loop's period varies by up to +-J of it (whole physics steps,
+uniform; the timestamps show it) and the logs are imported with ``--dt-tolerance`` 1.2 J, as the
+import report suggests; the model still simulates every step for the control period.
+
 With ``--pairs``, logs with TWO hidden effects instead (``--auto``), one line each and:
 
 - ``pairs_both_named``: both hidden effects added, and nothing else;
@@ -172,11 +176,12 @@ def log_spec(args, seed: int, over: dict) -> LogSpec:
     """The log of one case under the command line's recording options."""
     return LogSpec(seconds=args.seconds, episodes=args.episodes, seed=seed, noise=args.noise, feedback=args.feedback,
                    drop=dropped(args), control_hz=args.control_hz, torque_control=args.torque_control,
-                   stale=args.stale, glitches=args.glitches, **{"controller": "sines", **over})
+                   stale=args.stale, glitches=args.glitches, jitter=args.jitter, **{"controller": "sines", **over})
 
 
 def import_config(args) -> ImportConfig:
-    return ImportConfig(args.control_hz, 60.0, 1.5, 33.5, action_mode="torque" if args.torque_control else "position")
+    return ImportConfig(args.control_hz, 60.0, 1.5, 33.5, action_mode="torque" if args.torque_control else "position",
+                        dt_tolerance=max(0.1, 1.2 * args.jitter))
 
 
 def skipped(args, name: str, over: dict) -> bool:
@@ -236,6 +241,8 @@ def main() -> None:
                     help="the controller runs the PD on its noisy readings and logs torques (use >= 200 Hz)")
     ap.add_argument("--stale", type=float, default=0.0,
                     help="share of rows whose readings repeat the previous row's (a message that did not arrive)")
+    ap.add_argument("--jitter", type=float, default=0.0,
+                    help="the control period varies by up to +- this share of it (imported with 1.2x that tolerance)")
     ap.add_argument("--glitches", type=float, default=0.0,
                     help="share of rows with one reading off by robot_log.GLITCH x its noise (a corrupted packet)")
     args = ap.parse_args()

@@ -47,6 +47,9 @@ class LogSpec:
     noise: float = 0.0                   # multiple of NOISE
     glitches: float = 0.0                # share of rows in which one reading (not a contact flag) is off by
     # GLITCH x its group's NOISE, either sign: a corrupted sensor packet
+    jitter: float = 0.0                  # the control period varies by up to +- this share (whole physics steps,
+                                         # uniform), as a control loop on a busy computer does
+    jitter_logged: bool = True           # the timestamps show each step's real start (else the loop's nominal clock)
     stale: float = 0.0                   # share of rows whose readings repeat the previous row's (a message
     # that did not arrive; the controller acts on the repeated reading too)
     feedback: float = 0.0                # gain multiple of an attitude feedback (``_level``) the controller adds,
@@ -155,6 +158,8 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
     rng = np.random.default_rng(s.seed)
     noise = _noise(s)                    # (rows, 43): drawn up front, so the controller sees what is logged
     stale = np.random.default_rng(s.seed + 2000).random(len(noise)) < s.stale
+    spread = int(round(s.jitter * sub))
+    periods = sub + np.random.default_rng(s.seed + 4000).integers(-spread, spread + 1, len(noise))  # physics steps
     logged = None
     rows: dict[str, list] = {k: [] for k in ("episode_index", "timestamp", *STATE_NAMES,
                                              *(f"action.{j}" for j in JOINT_NAMES))}
@@ -168,9 +173,10 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
         queue = [STANCE.copy()] * s.latency_steps  # a command waits this many physics steps
         v_prev = d.qvel[0:3].copy()
         touching = np.ones(4)
+        clock, last = 0, 1.0 / s.control_hz  # physics steps since the episode started; the last period, s
         for k in range(int(s.seconds * s.control_hz)):
             rot = d.xmat[m.body("trunk").id].reshape(3, 3)
-            acc = (d.qvel[0:3] - v_prev) * s.control_hz + np.array([0, 0, G])
+            acc = (d.qvel[0:3] - v_prev) / last + np.array([0, 0, G])
             state = np.concatenate([d.qpos[0:3], _rpy(d.qpos[3:7]), d.qpos[qadr] + offset, rot.T @ d.qvel[0:3],
                                     d.qvel[3:6], d.qvel[dadr], touching, rot.T @ acc])
             if s.marker is not None:
@@ -189,10 +195,12 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
             for j, v in zip(JOINT_NAMES, a):
                 rows[f"action.{j}"].append(v)
             rows["episode_index"].append(ep)
-            rows["timestamp"].append(k / s.control_hz)
+            rows["timestamp"].append(clock / s.physics_hz if s.jitter_logged else k / s.control_hz)
             v_prev = d.qvel[0:3].copy()
             touching = np.zeros(4)
-            for _ in range(sub):
+            clock += periods[row]
+            last = periods[row] / s.physics_hz
+            for _ in range(periods[row]):
                 queue.append(a)
                 cmd = queue.pop(0)
                 q, qd = d.qpos[qadr] + offset, d.qvel[dadr]

@@ -48,6 +48,21 @@ def test_csv_with_renamed_scaled_columns_and_a_missing_channel(tmp_path, log_row
     assert info["kp"] == 60 and info["control_hz"] == 50 and info["source"]["simulator"] == "log"
 
 
+def test_a_jittery_control_loop_gets_the_tolerance_that_keeps_its_episodes_whole(tmp_path, acn):
+    """Steps of 17-23 ms in a 50 Hz log: many split at the default 10 %, and the report says which
+    tolerance keeps them whole; with it, nothing is split."""
+    write_log(tmp_path / "log.csv", LogSpec(seconds=1.0, episodes=2, seed=5, jitter=0.15))
+    r = acn("import", str(tmp_path / "log.csv"), "--out", str(tmp_path / "split"), *CONTROL)
+    assert r.returncode == 0, r.stderr
+    breaks = int(r.stdout.split("split at ")[1].split()[0])
+    assert breaks > 5 and "99 % of the time steps are within 15 % of it" in r.stdout, r.stdout
+    assert "--dt-tolerance 0.18 keeps them whole" in r.stdout, r.stdout
+    r = acn("import", str(tmp_path / "log.csv"), "--out", str(tmp_path / "whole"), *CONTROL, "--dt-tolerance", "0.18")
+    assert r.returncode == 0 and "split at 0 wrong time step(s)" in r.stdout and "keeps them whole" not in r.stdout, r.stdout
+    assert load(tmp_path / "whole").num_episodes == 2
+    assert load(tmp_path / "whole").meta.info["acn"]["import"]["time_step_spread"] == pytest.approx(0.15, abs=1e-3)
+
+
 def test_bad_rows_split_episodes_and_are_counted(tmp_path, log_rows, acn):
     cols = {k: v.copy() for k, v in log_rows.items()}
     cols["timestamp"][10:] += 0.013  # one time step of 33 ms instead of 20 ms

@@ -18,6 +18,9 @@ metadata (``missing_channels``); joint positions and actions are the minimum.
 Transitions: s_{t+1} is the next row of the same episode. A row with a non-finite value, or a
 time step that differs from the control period by more than ``dt_tolerance`` of it, ends a
 segment: the episode is split there (never bridged), and the cut rows and splits are counted.
+The spread of the time steps is reported; where many splits come from a loop whose period
+jitters by a few per cent, the report suggests the tolerance that keeps the episodes whole
+(the model simulates every step for the control period; jitter of +-10 % is noise to it).
 Each segment of n rows gives n - 1 transitions and becomes one dataset episode. A log whose
 median time step is not the control period is refused (timestamps in ms, a wrong rate).
 
@@ -28,6 +31,7 @@ frames, conventions); the findings are returned, and recorded in the metadata
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,6 +53,7 @@ INDEX_COLUMNS = ("episode_index", "timestamp")
 KNOWN_COLUMNS = (*INDEX_COLUMNS, *STATE_NAMES, *QUAT_COLUMNS, *ACTION_COLUMNS, *EFFORT_COLUMNS)
 FRAMES = ("body", "world")
 MAP_ENTRY_KEYS = ("column", "scale", "offset", "threshold")
+JITTER_MAX = 0.25  # a time-step spread up to this share of the period is taken as jitter (ImportReport.tolerance_hint)
 
 
 @dataclass
@@ -76,6 +81,18 @@ class ImportReport:
     dropped_short: int
     missing: list[str]
     findings: list[checks.Finding]
+    step_spread: float = 0.0  # 99th percentile of |time step / control period - 1| within episodes
+
+    def tolerance_hint(self, tolerance: float) -> str | None:
+        """A line suggesting a wider ``--dt-tolerance`` where the splits come from a control loop
+        whose period varies a little (jitter), not from lost rows: more than 1 % of the time steps
+        split while 99 % of them lie within ``JITTER_MAX`` of the period."""
+        if self.time_breaks <= 0.01 * self.rows or not tolerance < self.step_spread <= JITTER_MAX:
+            return None
+        wider = math.ceil(round(self.step_spread * 120, 3)) / 100  # 20 % above the spread, in whole per cent
+        return (f"the control loop's period varies: 99 % of the time steps are within "
+                f"{100 * self.step_spread:.0f} % of it, and {self.time_breaks} split the episodes; if that is the "
+                f"loop's jitter, not lost rows, --dt-tolerance {wider:g} keeps them whole")
 
 
 def read_table(path: Path) -> dict[str, np.ndarray]:
@@ -200,7 +217,9 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
         good &= np.isfinite(effort).all(1)
 
     period = 1.0 / cfg.control_hz
-    _check_time_step(episode, timestamp, period, cfg.dt_tolerance)
+    steps = _time_steps(episode, timestamp)
+    _check_time_step(steps, period, cfg.dt_tolerance)
+    spread = float(np.percentile(np.abs(steps / period - 1.0), 99)) if len(steps) else 0.0
     meta = {
         "format_version": schema.FORMAT_VERSION, "paired": False,
         "source": {"simulator": "log", "version": None, "file": log.name}, "target": None,
@@ -231,9 +250,10 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
         report = ImportReport(rows=n, transitions=transitions, episodes=writer.num_episodes,
                               cut_nonfinite=int((~good).sum()), time_breaks=reasons.get("split_time_gap", 0),
                               dropped_short=dropped, missing=missing,
-                              findings=checks.check(written, period, cfg.action_mode))
+                              findings=checks.check(written, period, cfg.action_mode), step_spread=spread)
         writer.meta.info[schema.ACN_KEY]["import"] = {"file": log.name, "rows": n, "transitions": transitions,
                           "rows_cut_nonfinite": report.cut_nonfinite, "time_step_breaks": report.time_breaks,
+                          "time_step_spread": round(spread, 4),
                           "segments_too_short": dropped, "dt_tolerance": cfg.dt_tolerance,
                           "linvel_frame": cfg.linvel_frame, "angvel_frame": cfg.angvel_frame,
                           "checks": [f.to_json() for f in report.findings]}
@@ -283,9 +303,13 @@ def _to_body_frame(state: np.ndarray, cfg: ImportConfig) -> np.ndarray:
     return out
 
 
-def _check_time_step(episode: np.ndarray, timestamp: np.ndarray, period: float, tol: float) -> None:
+def _time_steps(episode: np.ndarray, timestamp: np.ndarray) -> np.ndarray:
+    """The finite time steps between consecutive rows of one episode, s."""
+    return np.diff(timestamp)[(np.diff(episode) == 0) & np.isfinite(np.diff(timestamp))]
+
+
+def _check_time_step(steps: np.ndarray, period: float, tol: float) -> None:
     """Refuse a log whose median time step is not the control period (one line: the likely cause)."""
-    steps = np.diff(timestamp)[(np.diff(episode) == 0) & np.isfinite(np.diff(timestamp))]
     if not len(steps):
         return
     med = float(np.median(steps))
