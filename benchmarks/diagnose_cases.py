@@ -33,6 +33,10 @@ With ``--jitter J``, the control loop's period varies by up to +-J of it (whole 
 uniform; the timestamps show it) and the logs are imported with ``--dt-tolerance`` 1.2 J, as the
 import report suggests; the model still simulates every step for the control period.
 
+With ``--velocity-filter TAU``, the robots low-pass the joint velocities they log (first order,
+time constant TAU s, every physics step); the data checks name the lag and the diagnosis
+derives those velocities from the joint angles.
+
 With ``--pairs``, logs with TWO hidden effects instead (``--auto``), one line each and:
 
 - ``pairs_both_named``: both hidden effects added, and nothing else;
@@ -176,7 +180,8 @@ def log_spec(args, seed: int, over: dict) -> LogSpec:
     """The log of one case under the command line's recording options."""
     return LogSpec(seconds=args.seconds, episodes=args.episodes, seed=seed, noise=args.noise, feedback=args.feedback,
                    drop=dropped(args), control_hz=args.control_hz, torque_control=args.torque_control,
-                   stale=args.stale, glitches=args.glitches, jitter=args.jitter, **{"controller": "sines", **over})
+                   stale=args.stale, glitches=args.glitches, jitter=args.jitter,
+                   velocity_filter=args.velocity_filter, **{"controller": "sines", **over})
 
 
 def import_config(args) -> ImportConfig:
@@ -243,6 +248,8 @@ def main() -> None:
                     help="share of rows whose readings repeat the previous row's (a message that did not arrive)")
     ap.add_argument("--jitter", type=float, default=0.0,
                     help="the control period varies by up to +- this share of it (imported with 1.2x that tolerance)")
+    ap.add_argument("--velocity-filter", type=float, default=0.0,
+                    help="s, time constant of a low-pass filter on the logged joint velocities")
     ap.add_argument("--glitches", type=float, default=0.0,
                     help="share of rows with one reading off by robot_log.GLITCH x its noise (a corrupted packet)")
     args = ap.parse_args()

@@ -50,6 +50,8 @@ class LogSpec:
     jitter: float = 0.0                  # the control period varies by up to +- this share (whole physics steps,
                                          # uniform), as a control loop on a busy computer does
     jitter_logged: bool = True           # the timestamps show each step's real start (else the loop's nominal clock)
+    velocity_filter: float = 0.0         # s, time constant of a first-order low-pass the robot applies to the
+                                         # joint velocities it logs (and its controller reads), every physics step
     stale: float = 0.0                   # share of rows whose readings repeat the previous row's (a message
     # that did not arrive; the controller acts on the repeated reading too)
     feedback: float = 0.0                # gain multiple of an attitude feedback (``_level``) the controller adds,
@@ -173,12 +175,13 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
         queue = [STANCE.copy()] * s.latency_steps  # a command waits this many physics steps
         v_prev = d.qvel[0:3].copy()
         touching = np.ones(4)
+        qd_read = d.qvel[dadr].copy()  # the low-passed joint velocities (velocity_filter)
         clock, last = 0, 1.0 / s.control_hz  # physics steps since the episode started; the last period, s
         for k in range(int(s.seconds * s.control_hz)):
             rot = d.xmat[m.body("trunk").id].reshape(3, 3)
             acc = (d.qvel[0:3] - v_prev) / last + np.array([0, 0, G])
             state = np.concatenate([d.qpos[0:3], _rpy(d.qpos[3:7]), d.qpos[qadr] + offset, rot.T @ d.qvel[0:3],
-                                    d.qvel[3:6], d.qvel[dadr], touching, rot.T @ acc])
+                                    d.qvel[3:6], qd_read, touching, rot.T @ acc])
             if s.marker is not None:
                 state = _as_marker(state, rot, np.asarray(s.marker, float))
             row = len(rows["timestamp"])
@@ -213,6 +216,7 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
                     tau = np.clip(s.gains[0] * kp * err - s.gains[1] * kd * qd, -s.torque_limit, s.torque_limit)
                 d.ctrl[:] = s.strength * tau
                 mujoco.mj_step(m, d)
+                qd_read += (d.qvel[dadr] - qd_read) / (1.0 + s.velocity_filter * s.physics_hz)
                 pairs = d.contact.geom[: d.ncon]  # (ncon, 2) geom ids; a foot touches where it meets the floor
                 on_floor = (pairs == floor).any(axis=1)
                 foot = foot_of_body[m.geom_bodyid[pairs[on_floor]]]

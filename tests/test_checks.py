@@ -79,6 +79,27 @@ def _held(names, every: int):
     return change
 
 
+def _low_passed(names, tau: float, dt: float = 1 / 50):
+    """Readings low-pass filtered by the logger (first order, time constant ``tau`` s, per episode)."""
+    def change(c):
+        alpha = dt / (tau + dt)
+        for n in names:
+            v = c[n].copy()
+            for t in range(1, len(v)):
+                if c["episode_index"][t] == c["episode_index"][t - 1]:
+                    v[t] = v[t - 1] + alpha * (c[n][t] - v[t - 1])
+            c[n] = v
+    return change
+
+
+def _late(names):
+    """Readings one row late (a sensor read before the positions, in the previous cycle)."""
+    def change(c):
+        for n in names:
+            c[n] = np.r_[c[n][:1], c[n][:-1]]
+    return change
+
+
 CALVES = [f"{j}_{k}" for j in JOINT_NAMES if "calf" in j for k in ("pos", "vel")] + \
     [f"action.{j}" for j in JOINT_NAMES if "calf" in j]
 
@@ -98,6 +119,10 @@ CORRUPTIONS = {
     "an IMU at half the log's rate": (_held(GROUPS["imu_acc"] + GROUPS["base_angvel"], 2),
                                       "base_angvel, imu_acc repeat the previous row's values exactly",
                                       "slower than the log"),
+    "joint velocities low-pass filtered": (_low_passed(GROUPS["joint_vel"], 0.02), "the readings of every joint_vel "
+                                           "channel lag the motion", "derives them from the positions"),
+    "a gyroscope one row late": (_late(GROUPS["base_angvel"]), "every base_angvel channel lag the motion",
+                                 "read at another time"),
 }
 
 

@@ -20,7 +20,7 @@ from acn.models.diagnose.rank import doubt
 from acn.models.diagnose.report import terminal, to_json, write_html
 from acn.toolkit.collector import CollectConfig
 from acn.toolkit.effects import AppliedEffect, Model, get_effect
-from acn.toolkit.state import JOINT_NAMES
+from acn.toolkit.state import GROUPS, JOINT_NAMES
 
 # Small and quick: a few hundred rows, a few hundred re-simulated per stage.
 FAST = DiagnoseConfig(horizons=(1, 5), compare_rows=300, rollout_starts=30, rank_rows=100, judge_rows=300,
@@ -368,6 +368,28 @@ def test_repeated_and_corrupted_readings_leave_the_damping_found(tmp_path):
     assert d.ranking[0].name == "joint_damping" and d.verdict == "effect", d.reason
     assert close(d.added[0].fit.values["value"], 0.5)
     assert "the steps the repeats data check names were left out" in d.reason and "fix the data" not in d.reason
+
+
+def test_low_pass_filtered_joint_velocities_are_derived_and_the_damping_is_found(tmp_path):
+    """A robot that low-passes the joint velocities it logs (10 ms): compared with them, damping
+    0.5 was fitted as 0.353 and armature 0.0205 added beside it (the filter's lag reads as
+    inertia). The data check names the lag, the diagnosis derives those velocities from the
+    joint angles instead (measured: 0.491)."""
+    from acn.datasets.importer import ImportConfig, import_log
+
+    damping = lambda spec: [j.damping.__setitem__(0, 0.5) for j in spec.joints if j.name != "root"]  # noqa: E731
+    write_log(tmp_path / "log.csv", LogSpec(noise=1.0, seed=31, velocity_filter=0.01, spec_edit=damping))
+    path, report = import_log(tmp_path / "log.csv", tmp_path / "robot", ImportConfig(50, 60.0, 1.5, 33.5))
+    assert [f.check for f in report.findings] == ["velocity_lag"], report.findings
+    assert report.findings[0].channels == tuple(GROUPS["joint_vel"])
+    m = load_measurements(path)
+    problem = prepare(m, Model.parse("mujoco"), FAST)
+    assert set(GROUPS["joint_vel"]) <= set(problem.derived) and not set(problem.derived) & set(GROUPS["base_angvel"])
+    cfg = replace(FAST, finest="shared", candidates=("joint_damping", "armature", "joint_friction", "pd_gains"))
+    d = diagnose(m, Model.parse("mujoco"), cfg, automatic=True)
+    assert [a.name for a in d.added] == ["joint_damping"] and d.verdict == "effect", d.reason
+    assert close(d.added[0].fit.values["value"], 0.5)
+    assert "velocity_lag data check names were derived from the positions" in d.reason and "fix the data" not in d.reason
 
 
 def test_one_weak_motor_is_found_where_a_shared_strength_is_not_significant(tmp_path):

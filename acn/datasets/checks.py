@@ -16,6 +16,10 @@ that must agree by the schema's definitions (``acn.toolkit.state``), never with 
   height, by forward kinematics of the trunk pose and joint angles;
 - ``accelerometer``: its mean reads +9.81 m/s^2 on z for a level trunk (gravity included);
 - ``contacts``: 0/1 flags; ``actions``: position targets near the joint angles they drive;
+- ``velocity_lag``: joint velocities and the gyroscope against the central rate of change of
+  their positions: a reading that lags the motion (a low-pass filter in the robot's software or
+  driver, or a reading taken earlier than the positions) differs from the rate by -lag x the
+  acceleration;
 - ``repeats``: a sensor group whose readings equal the previous row's exactly, for one to
   ``REPEAT_RUN`` rows of a signal that moves before and after (a message that did not arrive and
   was logged again, or a sensor slower than the log; longer runs are a robot at rest).
@@ -48,6 +52,9 @@ STANCE_MEDIAN, STANCE_SPREAD = 0.015, 0.04  # m
 REPEAT_RUN = 3         # at most this many rows equal to the one before count as repeated readings
 REPEAT_SHARE = 0.01    # a sensor group with more repeated rows than this is a finding
 MOVING = 1e-5          # SI units: a signal that changes less than this after a run is at rest (float32 steps)
+LAG_MIN = 0.004        # s: a velocity lagging (or leading) its position's rate by more is a finding (consistent
+                       # logs: -0.4..0.9 ms at 50-200 Hz, sensor noise 0-3x, two gaits; acn-collect: -0.2..1.5 ms)
+LAG_Z = 8.0            # ... where the lag is this many standard errors from zero
 SENSOR_GROUPS = ("base_pos", "base_rpy", "joint_pos", "base_linvel", "base_angvel", "joint_vel", "imu_acc")
 
 
@@ -77,7 +84,8 @@ def check(episodes: list[Episode], dt: float, action_mode: str = "position") -> 
     states = np.concatenate([s for s, _ in episodes])
     out = pose(episodes)
     suspect = {c for f in out for c in f.channels}  # a velocity is not blamed for its position's unit
-    out += velocities(episodes, dt, suspect) + stance_feet(states) + accelerometer(states) + contacts(states)
+    out += velocities(episodes, dt, suspect)
+    out += velocity_lag(episodes, dt, {c for f in out for c in f.channels}) + stance_feet(states) + accelerometer(states) + contacts(states)
     if action_mode == "position":
         out += actions(episodes)
     return out + repeats(episodes)
@@ -94,6 +102,18 @@ def from_measurements(m: Measurements) -> list[Finding]:
     """``check`` on ``acn.datasets.measurements.Measurements`` (rows of an episode consecutive)."""
     episodes = [(np.vstack([m.state[a:b], m.next_state[b - 1:b]]), m.action[a:b]) for a, b in _runs(m)]
     return check(episodes, m.control.control_dt, m.control.action_mode)
+
+
+def distrusted(m: Measurements) -> list[str]:
+    """Channels of ``m`` that a ``DERIVED`` check finds untrustworthy (``velocity_lag``): the
+    diagnosis derives them from the positions, as if they were not logged."""
+    episodes = [(np.vstack([m.state[a:b], m.next_state[b - 1:b]]), m.action[a:b]) for a, b in _runs(m)]
+    episodes = [(s, a) for s, a in episodes if len(s) >= 2]
+    if not episodes:
+        return []
+    dt = m.control.control_dt
+    suspect = {c for f in pose(episodes) + velocities(episodes, dt) for c in f.channels}  # as ``check``
+    return [c for f in velocity_lag(episodes, dt, suspect) for c in f.channels]
 
 
 def repeated_transitions(m: Measurements, groups=SENSOR_GROUPS) -> tuple[np.ndarray, np.ndarray]:
@@ -243,6 +263,81 @@ def velocities(episodes: list[Episode], dt: float, suspect: set[str] = frozenset
     return out
 
 
+def lag(episodes: list[Episode], dt: float, group: str) -> tuple[float, float]:
+    """(lag in s, its z) of ``group``'s velocity readings (joint_vel or base_angvel) behind the
+    motion of their positions. With h about half ``WINDOW_S``, the central rate
+    r_t = (p_{t+h} - p_{t-h}) / 2h; a reading low-passed with time constant tau (or taken tau
+    earlier) is v_t = r_t - tau a_t to first order, so tau is the least-squares slope of
+    r_t - v_t on the acceleration a_t, pooled over the group's channels. a_t is taken over twice
+    the span, (p_{t+2h} - 2 p_t + p_{t-2h}) / 4h^2: it shares no reading with r_t - v_t, and its
+    noise is 16 times smaller than over h (noise in a_t only shrinks tau towards 0).
+    The action changes at t are regressors too (one coefficient per channel and joint): a new
+    action changes the acceleration at the very row it is logged on, so the rate before and
+    after differ by a step that is not lag (without them consistent logs read 2-4 ms at 50 Hz).
+    (nan, 0) where too few rows."""
+    k = max(1, round(WINDOW_S / dt / 2))
+    h = k * dt
+    xs, ys, us = [], [], []
+    for s, u in episodes:
+        if len(s) <= 4 * k + 1:
+            continue
+        t = np.arange(2 * k, len(s) - 2 * k)
+        if group == "joint_vel":
+            q = s[:, SLICES["joint_pos"]]
+            rate = (q[t + k] - q[t - k]) / (2 * h)
+            acc = (q[t + 2 * k] - 2 * q[t] + q[t - 2 * k]) / (2 * h) ** 2
+        else:  # the gyroscope: body rates from the Euler angles' rates
+            rpy = s[:, SLICES["base_rpy"]]
+
+            def body(a, b, span):  # body rate over rows [a, b], at its middle
+                d = wrap_angle(rpy[b] - rpy[a])
+                return rpy_rate_to_body(rpy[a] + d / 2, d / span)
+            rate = body(t - k, t + k, 2 * h)
+            acc = (body(t, t + 2 * k, 2 * h) - body(t - 2 * k, t, 2 * h)) / (2 * h)
+        xs.append(acc)
+        ys.append(rate - s[t][:, SLICES[group]])
+        us.append(u[t] - u[t - 1])
+    if not xs:
+        return float("nan"), 0.0
+    x, y, du = np.concatenate(xs), np.concatenate(ys), np.concatenate(us)
+    ok = np.isfinite(x).all(1) & np.isfinite(y).all(1) & np.isfinite(du).all(1)
+    x, y, du = x[ok], y[ok], du[ok]
+    n, c = y.shape
+    if n < MIN_ROWS:
+        return float("nan"), 0.0
+    per_joint = group == "joint_vel"  # a joint's own action; the trunk's rotation: every joint's
+    width = 1 if per_joint else du.shape[1]
+    design = np.zeros((n, c, 1 + c * width))
+    design[:, :, 0] = x
+    for j in range(c):
+        design[:, j, 1 + j * width: 1 + (j + 1) * width] = du[:, j:j + 1] if per_joint else du
+    design, target = design.reshape(n * c, -1), y.ravel()
+    coef, *_ = np.linalg.lstsq(design, target, rcond=None)
+    resid = target - design @ coef
+    var = np.linalg.pinv(design.T @ design)[0, 0] * (resid @ resid) / max(len(target) - design.shape[1], 1)
+    tau, se = float(coef[0]), float(np.sqrt(max(var, 0.0)))
+    return tau, tau / se if se > 0 else 0.0
+
+
+def velocity_lag(episodes: list[Episode], dt: float, suspect: set[str] = frozenset()) -> list[Finding]:
+    """A finding per velocity group (joint_vel, base_angvel) whose readings lag or lead the motion
+    of their positions (``lag``) by more than ``LAG_MIN``, ``LAG_Z`` standard
+    errors from zero. The diagnosis derives those velocities from the positions instead
+    (``DERIVED``): a model compared with a filtered velocity reads the filter's lag as inertia
+    or friction."""
+    out = []
+    for group, position in (("joint_vel", "joint_pos"), ("base_angvel", "base_rpy")):
+        if suspect & set(GROUPS[position]) or suspect & set(GROUPS[group]):
+            continue
+        tau, z = lag(episodes, dt, group)
+        if np.isfinite(tau) and abs(tau) > LAG_MIN and abs(z) > LAG_Z:
+            how = f"lag the motion by {1e3 * tau:.0f} ms" if tau > 0 else f"lead the motion by {-1e3 * tau:.0f} ms"
+            out.append(Finding("velocity_lag", GROUPS[group], f"the readings of {_names(GROUPS[group])} {how} of "
+                               f"their positions (z {abs(z):.0f}): low-pass filtered, or read at another time than the "
+                               "positions? the diagnosis derives them from the positions instead"))
+    return out
+
+
 # ----- pose ------------------------------------------------------------------------------------
 def pose(episodes: list[Episode]) -> list[Finding]:
     """Joint angles in the A1's ranges, the trunk upright and its height where episodes start."""
@@ -385,6 +480,7 @@ def repeats(episodes: list[Episode]) -> list[Finding]:
 
 LEFT_OUT = ("repeats",)  # checks whose rows the diagnosis leaves out (acn.models.diagnose.problem), so their
 # findings do not make a verdict's data suspect
+DERIVED = ("velocity_lag",)  # checks whose channels the diagnosis derives from positions instead, likewise
 
 
 def actions(episodes: list[Episode]) -> list[Finding]:

@@ -72,6 +72,18 @@ class Measurements:
                             self.episode[rows], self.frame[rows], self.control, self.info, self.description,
                             self.missing, None if self.height is None else self.height.subset(rows))
 
+    def without(self, channels: list[str]) -> "Measurements":
+        """A copy in which ``channels`` count as not logged (NaN, listed in ``missing``): readings
+        the data checks do not trust, derived like missing ones by ``fill_derived``."""
+        new = [c for c in channels if c not in self.missing]
+        if not new:
+            return self
+        cols = [STATE_NAMES.index(c) for c in new]
+        state, next_state = self.state.copy(), self.next_state.copy()
+        state[:, cols] = next_state[:, cols] = np.nan
+        return Measurements(state, self.action, next_state, self.effort, self.episode, self.frame, self.control,
+                            self.info, self.description, [*self.missing, *new], self.height)
+
     def starts(self, rows: np.ndarray, backend: str, configs: SimConfig | list[SimConfig],
                model: np.ndarray | None = None) -> np.ndarray:
         """States ``rows`` as a simulator of ``backend`` built from ``configs[model[i]]`` (``model``

@@ -143,14 +143,17 @@ def evidence(c: Candidate) -> str:
 def findings_note(findings: list[checks.Finding], named: tuple[str, ...]) -> str:
     """What the verdict's reason adds about the data checks: a finding that an effect the verdict
     names produces too (``Finding.may_be``, e.g. encoder offsets put stance feet off the ground)
-    is accounted for, so is one whose rows were left out (``checks.LEFT_OUT``); any other says to
-    fix the data first."""
+    is accounted for, so is one whose rows were left out (``checks.LEFT_OUT``) or whose channels
+    were derived from positions (``checks.DERIVED``); any other says to fix the data first."""
     covered = [f for f in findings if set(f.may_be) & set(named)]
     left_out = [f for f in findings if f.check in checks.LEFT_OUT]
-    rest = [f for f in findings if f not in covered and f not in left_out]
+    derived = [f for f in findings if f.check in checks.DERIVED]
+    rest = [f for f in findings if f not in covered and f not in left_out and f not in derived]
     note = "".join(f"; the {f.check} data check's finding is what {' / '.join(set(f.may_be) & set(named))} "
                    "does too" for f in covered)
     note += "".join(f"; the steps the {f.check} data check names were left out" for f in left_out)
+    note += "".join(f"; the readings the {f.check} data check names were derived from the positions instead"
+                    for f in derived)
     if rest:
         note += (f"; the measurements have {len(rest)} consistency finding(s) (data checks): fix the data first, "
                  "a model explains them as physics")

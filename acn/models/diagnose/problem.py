@@ -149,9 +149,10 @@ class Problem:
 
 
 def prepare(data: Measurements, model: Model, cfg: DiagnoseConfig) -> Problem:
-    """Check the measurements, derive missing velocities, choose channels, scales and the split."""
+    """Check the measurements, derive missing velocities (and those that lag their positions,
+    ``checks.distrusted``), choose channels, scales and the split."""
     cfg.validate()
-    data, derived = fill_derived(data, model.backend)
+    data, derived = fill_derived(data.without(checks.distrusted(data)), model.backend)
     finite = np.isfinite(data.state[:, _dynamic()]).all(1) & np.isfinite(data.next_state[:, _dynamic()]).all(1)
     if finite.sum() < 16:
         raise UserError(f"{data.description}: fewer than 16 complete transitions to compare")
