@@ -54,6 +54,7 @@ REPEAT_SHARE = 0.01    # a sensor group with more repeated rows than this is a f
 MOVING = 1e-5          # SI units: a signal that changes less than this after a run is at rest (float32 steps)
 LAG_MIN = 0.004        # s: a velocity lagging (or leading) its position's rate by more is a finding (consistent
                        # logs: -0.4..0.9 ms at 50-200 Hz, sensor noise 0-3x, two gaits; acn-collect: -0.2..1.5 ms)
+LAG_BINS = 8          # bins of action changes the lag regression takes out (``lag``)
 LAG_Z = 8.0            # ... where the lag is this many standard errors from zero
 SENSOR_GROUPS = ("base_pos", "base_rpy", "joint_pos", "base_linvel", "base_angvel", "joint_vel", "imu_acc")
 
@@ -268,20 +269,26 @@ def lag(episodes: list[Episode], dt: float, group: str) -> tuple[float, float]:
     motion of their positions. With h about half ``WINDOW_S``, the central rate
     r_t = (p_{t+h} - p_{t-h}) / 2h; a reading low-passed with time constant tau (or taken tau
     earlier) is v_t = r_t - tau a_t to first order, so tau is the least-squares slope of
-    r_t - v_t on the acceleration a_t, pooled over the group's channels. a_t is taken over twice
-    the span, (p_{t+2h} - 2 p_t + p_{t-2h}) / 4h^2: it shares no reading with r_t - v_t, and its
-    noise is 16 times smaller than over h (noise in a_t only shrinks tau towards 0).
-    The action changes at t are regressors too (one coefficient per channel and joint): a new
-    action changes the acceleration at the very row it is logged on, so the rate before and
-    after differ by a step that is not lag (without them consistent logs read 2-4 ms at 50 Hz).
-    (nan, 0) where too few rows."""
+    r_t - v_t on the acceleration a_t. a_t is taken over twice the span,
+    (p_{t+2h} - 2 p_t + p_{t-2h}) / 4h^2: it shares no reading with r_t - v_t, and its noise is
+    16 times smaller than over h (noise in a_t only shrinks tau towards 0).
+    The action changes around t are regressors too: each new action bends the motion at the row
+    it is logged on (or a latency after it), and the samples sit at those bends, so the central
+    rate differs from the reading by a step that is not lag (without them consistent logs read
+    2-4 ms at 50 Hz, and 6-7 ms with a 15-25 ms latency under a feedback controller whose
+    actions carry sensor noise). ``LAG_BINS`` bins of the changes over the actions whose bend
+    can fall inside the span (one more period back for a latency), a joint's own actions for a
+    joint, every joint's for the trunk. One regression per channel; tau is their
+    inverse-variance mean. (nan, 0) where too few rows."""
     k = max(1, round(WINDOW_S / dt / 2))
     h = k * dt
+    lo, hi = -(2 * k + 2), 2 * k  # action changes u_{l} - u_{l-1} for t + lo <= l < t + hi
+    edges = np.unique(np.round(np.linspace(lo, hi, min(LAG_BINS, hi - lo) + 1)).astype(int))
     xs, ys, us = [], [], []
     for s, u in episodes:
-        if len(s) <= 4 * k + 1:
+        t = np.arange(-lo + 1, len(s) - 2 * k)
+        if len(t) < 1:
             continue
-        t = np.arange(2 * k, len(s) - 2 * k)
         if group == "joint_vel":
             q = s[:, SLICES["joint_pos"]]
             rate = (q[t + k] - q[t - k]) / (2 * h)
@@ -296,27 +303,30 @@ def lag(episodes: list[Episode], dt: float, group: str) -> tuple[float, float]:
             acc = (body(t, t + 2 * k, 2 * h) - body(t - 2 * k, t, 2 * h)) / (2 * h)
         xs.append(acc)
         ys.append(rate - s[t][:, SLICES[group]])
-        us.append(u[t] - u[t - 1])
+        # the changes within each bin sum to the difference of the actions at its edges
+        us.append(np.stack([u[t + e1 - 1] - u[t + e0 - 1] for e0, e1 in zip(edges[:-1], edges[1:])], axis=1))
     if not xs:
         return float("nan"), 0.0
-    x, y, du = np.concatenate(xs), np.concatenate(ys), np.concatenate(us)
-    ok = np.isfinite(x).all(1) & np.isfinite(y).all(1) & np.isfinite(du).all(1)
+    x, y, du = np.concatenate(xs), np.concatenate(ys), np.concatenate(us)  # (n, c), (n, c), (n, bins, 12)
+    ok = np.isfinite(x).all(1) & np.isfinite(y).all(1) & np.isfinite(du).all((1, 2))
     x, y, du = x[ok], y[ok], du[ok]
-    n, c = y.shape
-    if n < MIN_ROWS:
+    if len(x) < MIN_ROWS:
         return float("nan"), 0.0
-    per_joint = group == "joint_vel"  # a joint's own action; the trunk's rotation: every joint's
-    width = 1 if per_joint else du.shape[1]
-    design = np.zeros((n, c, 1 + c * width))
-    design[:, :, 0] = x
-    for j in range(c):
-        design[:, j, 1 + j * width: 1 + (j + 1) * width] = du[:, j:j + 1] if per_joint else du
-    design, target = design.reshape(n * c, -1), y.ravel()
-    coef, *_ = np.linalg.lstsq(design, target, rcond=None)
-    resid = target - design @ coef
-    var = np.linalg.pinv(design.T @ design)[0, 0] * (resid @ resid) / max(len(target) - design.shape[1], 1)
-    tau, se = float(coef[0]), float(np.sqrt(max(var, 0.0)))
-    return tau, tau / se if se > 0 else 0.0
+    taus, weights = [], []
+    for c in range(y.shape[1]):
+        own = du[:, :, c] if group == "joint_vel" else du.reshape(len(du), -1)
+        design = np.column_stack([x[:, c], own])
+        coef, *_ = np.linalg.lstsq(design, y[:, c], rcond=None)
+        resid = y[:, c] - design @ coef
+        var = np.linalg.pinv(design.T @ design)[0, 0] * (resid @ resid) / max(len(resid) - design.shape[1], 1)
+        if var > 0:
+            taus.append(coef[0])
+            weights.append(1.0 / var)
+    if not taus:
+        return float("nan"), 0.0
+    w = np.array(weights)
+    tau, se = float(np.dot(w, taus) / w.sum()), float(1.0 / np.sqrt(w.sum()))
+    return tau, tau / se
 
 
 def velocity_lag(episodes: list[Episode], dt: float, suspect: set[str] = frozenset()) -> list[Finding]:
