@@ -567,6 +567,9 @@ def import_main(argv: list[str] | None = None) -> int:
         print(f"read {r.rows} rows: {r.transitions} transitions in {r.episodes} episode(s); cut {r.cut_nonfinite} "
               f"row(s) with non-finite values, split at {r.time_breaks} wrong time step(s), dropped "
               f"{r.dropped_short} one-row segment(s)")
+        if r.folded:
+            print(f"a hybrid command ({', '.join(r.folded)}): stored as the position targets that drive the PD the "
+                  "same way, q_des + (kd dq_des + tau_ff) / kp")
         hint = r.tolerance_hint(args.dt_tolerance)
         if hint:
             print(hint)

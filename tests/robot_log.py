@@ -56,6 +56,9 @@ class LogSpec:
     # that did not arrive; the controller acts on the repeated reading too)
     feedback: float = 0.0                # gain multiple of an attitude feedback (``_level``) the controller adds,
     # on the measured (noisy) roll, pitch and gyro: the log's actions then depend on its sensor noise
+    feedforward: bool = False            # the controller sends (q_des, dq_des, tau_ff) and the motor runs
+                                         # kp (q_des - q) + kd (dq_des - qd) + tau_ff (an MIT-style hybrid
+                                         # command); logged as action.*, action_vel.*, action_torque.*
     torque_control: bool = False         # the controller runs the PD itself, on the MEASURED (noisy) joint
     # angles and speeds, once per control step, and sends torques: the log's actions are N m
     # (acn-import --action-mode torque); the motor applies them held, through latency and strength
@@ -143,6 +146,8 @@ def _as_marker(state: np.ndarray, rot: np.ndarray, marker: np.ndarray) -> np.nda
 
 def simulate(s: LogSpec) -> dict[str, np.ndarray]:
     """Rows of every episode, as our channel names -> values (plus episode_index, timestamp, actions)."""
+    if s.torque_control and s.feedforward:
+        raise ValueError("torque_control and feedforward are two kinds of command: choose one")
     if s.torque_control and (s.gains != (1.0, 1.0) or s.deadband):
         raise ValueError("torque_control: the PD gains and dead band are the controller's, logged in its torques")
     m = _spec(s).compile()
@@ -165,6 +170,8 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
     logged = None
     rows: dict[str, list] = {k: [] for k in ("episode_index", "timestamp", *STATE_NAMES,
                                              *(f"action.{j}" for j in JOINT_NAMES))}
+    if s.feedforward:
+        rows.update({f"action_{kind}.{j}": [] for kind in ("vel", "torque") for j in JOINT_NAMES})
     for ep in range(s.episodes):
         target = _targets(s, rng)
         mujoco.mj_resetData(m, d)
@@ -172,22 +179,27 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
         d.qpos[3:7] = [1, 0, 0, 0]
         d.qpos[qadr] = STANCE + rng.uniform(-0.03, 0.03, 12) - offset
         mujoco.mj_forward(m, d)
-        queue = [STANCE.copy()] * s.latency_steps  # a command waits this many physics steps
+        queue = [np.stack([STANCE, np.zeros(12), np.zeros(12)])] * s.latency_steps  # (q_des, dq_des, tau_ff) wait
+        ff_phase = rng.uniform(0, 2 * np.pi, 12) if s.feedforward else None          # this many physics steps
         v_prev = d.qvel[0:3].copy()
         touching = np.ones(4)
-        qd_read = d.qvel[dadr].copy()  # the low-passed joint velocities (velocity_filter)
+        qd_logged = d.qvel[dadr].copy()  # the low-passed joint velocities (velocity_filter)
         clock, last = 0, 1.0 / s.control_hz  # physics steps since the episode started; the last period, s
         for k in range(int(s.seconds * s.control_hz)):
             rot = d.xmat[m.body("trunk").id].reshape(3, 3)
             acc = (d.qvel[0:3] - v_prev) / last + np.array([0, 0, G])
             state = np.concatenate([d.qpos[0:3], _rpy(d.qpos[3:7]), d.qpos[qadr] + offset, rot.T @ d.qvel[0:3],
-                                    d.qvel[3:6], qd_read, touching, rot.T @ acc])
+                                    d.qvel[3:6], qd_logged, touching, rot.T @ acc])
             if s.marker is not None:
                 state = _as_marker(state, rot, np.asarray(s.marker, float))
             row = len(rows["timestamp"])
             state = logged if stale[row] and k > 0 else state + noise[row]
             logged = state
             a = target(k / s.control_hz)
+            dq_des, tau_ff = np.zeros(12), np.zeros(12)
+            if s.feedforward:  # the targets' own rate, and a slow torque about a per-type bias (N m)
+                dq_des = (target(k / s.control_hz + 1e-3) - target(k / s.control_hz - 1e-3)) / 2e-3
+                tau_ff = np.tile([0.5, 1.5, -2.5], 4) + 2.0 * np.sin(np.pi * k / s.control_hz + ff_phase)
             if s.feedback:
                 a = a + _level(state, s.feedback)
             if s.torque_control:  # the PD on the readings, in the controller: the action is its torque
@@ -197,6 +209,10 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
                 rows[name].append(v)
             for j, v in zip(JOINT_NAMES, a):
                 rows[f"action.{j}"].append(v)
+            if s.feedforward:
+                for j, v, f in zip(JOINT_NAMES, dq_des, tau_ff):
+                    rows[f"action_vel.{j}"].append(v)
+                    rows[f"action_torque.{j}"].append(f)
             rows["episode_index"].append(ep)
             rows["timestamp"].append(clock / s.physics_hz if s.jitter_logged else k / s.control_hz)
             v_prev = d.qvel[0:3].copy()
@@ -204,8 +220,8 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
             clock += periods[row]
             last = periods[row] / s.physics_hz
             for _ in range(periods[row]):
-                queue.append(a)
-                cmd = queue.pop(0)
+                queue.append(np.stack([a, dq_des, tau_ff]))
+                cmd, cmd_vel, cmd_ff = queue.pop(0)
                 q, qd = d.qpos[qadr] + offset, d.qvel[dadr]
                 if s.torque_control:
                     tau = np.clip(cmd, -s.torque_limit, s.torque_limit)
@@ -213,10 +229,11 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
                     err = cmd - q
                     if s.deadband:
                         err = np.sign(err) * np.maximum(np.abs(err) - s.deadband / 2, 0.0)
-                    tau = np.clip(s.gains[0] * kp * err - s.gains[1] * kd * qd, -s.torque_limit, s.torque_limit)
+                    tau = np.clip(s.gains[0] * kp * err + s.gains[1] * kd * (cmd_vel - qd) + cmd_ff,
+                                  -s.torque_limit, s.torque_limit)
                 d.ctrl[:] = s.strength * tau
                 mujoco.mj_step(m, d)
-                qd_read += (d.qvel[dadr] - qd_read) / (1.0 + s.velocity_filter * s.physics_hz)
+                qd_logged += (d.qvel[dadr] - qd_logged) / (1.0 + s.velocity_filter * s.physics_hz)
                 pairs = d.contact.geom[: d.ncon]  # (ncon, 2) geom ids; a foot touches where it meets the floor
                 on_floor = (pairs == floor).any(axis=1)
                 foot = foot_of_body[m.geom_bodyid[pairs[on_floor]]]

@@ -63,6 +63,30 @@ def test_a_jittery_control_loop_gets_the_tolerance_that_keeps_its_episodes_whole
     assert load(tmp_path / "whole").meta.info["acn"]["import"]["time_step_spread"] == pytest.approx(0.15, abs=1e-3)
 
 
+def test_a_hybrid_command_is_folded_into_the_position_targets(tmp_path, acn):
+    """An MIT-style command (q_des, dq_des, tau_ff, PD gains per joint type) becomes the position
+    target that drives the PD the same way; a partial set of columns is refused in one line."""
+    kp, kd = (100.0, 80.0, 50.0) * 4, (2.0, 1.5, 1.0) * 4
+    write_log(tmp_path / "log.csv", LogSpec(seconds=1.0, episodes=2, seed=5, feedforward=True, kp=kp, kd=kd))
+    r = acn("import", str(tmp_path / "log.csv"), "--out", str(tmp_path / "ds"), "--control-hz", "50",
+            "--kp", "100,80,50", "--kd", "2,1.5,1", "--torque-limit", "33.5")
+    assert r.returncode == 0 and "a hybrid command (action_vel, action_torque)" in r.stdout, r.stdout + r.stderr
+    table = pacsv.read_csv(str(tmp_path / "log.csv")).to_pydict()
+    first = slice(0, 49)
+    cols = lambda kind: np.column_stack([table[f"{kind}.{j}"][first] for j in JOINT_NAMES])  # noqa: E731
+    want = cols("action") + (np.array(kd) * cols("action_vel") + cols("action_torque")) / np.array(kp)
+    m = load_measurements(tmp_path / "ds")
+    np.testing.assert_allclose(m.action[first], want, atol=1e-5)
+    assert np.abs(want - cols("action")).max() > 0.05  # the feedforward matters
+    assert load(tmp_path / "ds").meta.info["acn"]["import"]["folded_into_position_targets"] == ["action_vel",
+                                                                                                "action_torque"]
+    table.pop("action_torque.RL_calf")
+    pacsv.write_csv(pa.table(table), str(tmp_path / "partial.csv"))
+    r = acn("import", str(tmp_path / "partial.csv"), "--out", str(tmp_path / "p"), *CONTROL)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "action_torque.RL_calf" in r.stderr
+    assert not (tmp_path / "p").exists()
+
+
 def test_bad_rows_split_episodes_and_are_counted(tmp_path, log_rows, acn):
     cols = {k: v.copy() for k, v in log_rows.items()}
     cols["timestamp"][10:] += 0.013  # one time step of 33 ms instead of 20 ms

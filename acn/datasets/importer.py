@@ -32,7 +32,7 @@ frames, conventions); the findings are returned, and recorded in the metadata
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -42,15 +42,20 @@ from acn.errors import UserError
 from acn.jsonfile import read_json
 from acn.toolkit.backends.base import joint_gains
 from acn.toolkit.collector import FALL_RULE, Episode, Trace, fallen
-from acn.toolkit.robot import ModelParams
+from acn.toolkit.robot import ModelParams, per_joint
 from acn.toolkit.rotations import quat_to_rpy, rpy_to_matrices
 from acn.toolkit.state import ACTION_NAMES, GROUPS, SLICES, STATE_NAMES
 
 ACTION_COLUMNS = tuple(f"action.{j}" for j in ACTION_NAMES)
 EFFORT_COLUMNS = tuple(f"effort.{j}" for j in ACTION_NAMES)
+# A hybrid (MIT-style) command beside the position target: a velocity target, rad/s, and a
+# feedforward torque, N m; the motor runs kp (q_des - q) + kd (dq_des - qd) + tau_ff.
+TARGET_VEL_COLUMNS = tuple(f"action_vel.{j}" for j in ACTION_NAMES)
+FEEDFORWARD_COLUMNS = tuple(f"action_torque.{j}" for j in ACTION_NAMES)
 QUAT_COLUMNS = ("base_quat_w", "base_quat_x", "base_quat_y", "base_quat_z")  # the trunk's orientation, world
 INDEX_COLUMNS = ("episode_index", "timestamp")
-KNOWN_COLUMNS = (*INDEX_COLUMNS, *STATE_NAMES, *QUAT_COLUMNS, *ACTION_COLUMNS, *EFFORT_COLUMNS)
+KNOWN_COLUMNS = (*INDEX_COLUMNS, *STATE_NAMES, *QUAT_COLUMNS, *ACTION_COLUMNS, *EFFORT_COLUMNS, *TARGET_VEL_COLUMNS,
+                 *FEEDFORWARD_COLUMNS)
 FRAMES = ("body", "world")
 MAP_ENTRY_KEYS = ("column", "scale", "offset", "threshold")
 JITTER_MAX = 0.25  # a time-step spread up to this share of the period is taken as jitter (ImportReport.tolerance_hint)
@@ -82,6 +87,7 @@ class ImportReport:
     missing: list[str]
     findings: list[checks.Finding]
     step_spread: float = 0.0  # 99th percentile of |time step / control period - 1| within episodes
+    folded: list[str] = field(default_factory=list)  # hybrid command columns folded into the position targets
 
     def tolerance_hint(self, tolerance: float) -> str | None:
         """A line suggesting a wider ``--dt-tolerance`` where the splits come from a control loop
@@ -205,7 +211,7 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
         raise UserError(f"{log} has fewer than 2 rows")
     missing = [c for c in STATE_NAMES if c not in cols]
     state = _to_body_frame(np.column_stack([cols.get(c, np.full(n, np.nan)) for c in STATE_NAMES]), cfg)
-    action = np.column_stack([cols[c] for c in ACTION_COLUMNS])
+    action, folded = _fold_hybrid(np.column_stack([cols[c] for c in ACTION_COLUMNS]), cols, cfg)
     has_effort = all(c in cols for c in EFFORT_COLUMNS)
     effort = np.column_stack([cols[c] for c in EFFORT_COLUMNS]) if has_effort else np.full((n, 12), np.nan)
     episode = cols.get("episode_index", np.zeros(n))
@@ -250,10 +256,11 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
         report = ImportReport(rows=n, transitions=transitions, episodes=writer.num_episodes,
                               cut_nonfinite=int((~good).sum()), time_breaks=reasons.get("split_time_gap", 0),
                               dropped_short=dropped, missing=missing,
-                              findings=checks.check(written, period, cfg.action_mode), step_spread=spread)
+                              findings=checks.check(written, period, cfg.action_mode), step_spread=spread,
+                              folded=folded)
         writer.meta.info[schema.ACN_KEY]["import"] = {"file": log.name, "rows": n, "transitions": transitions,
                           "rows_cut_nonfinite": report.cut_nonfinite, "time_step_breaks": report.time_breaks,
-                          "time_step_spread": round(spread, 4),
+                          "time_step_spread": round(spread, 4), "folded_into_position_targets": folded,
                           "segments_too_short": dropped, "dt_tolerance": cfg.dt_tolerance,
                           "linvel_frame": cfg.linvel_frame, "angvel_frame": cfg.angvel_frame,
                           "checks": [f.to_json() for f in report.findings]}
@@ -301,6 +308,32 @@ def _to_body_frame(state: np.ndarray, cfg: ImportConfig) -> np.ndarray:
     for g in groups:
         out[:, SLICES[g]] = np.einsum("nji,nj->ni", rot, state[:, SLICES[g]])  # R^T v
     return out
+
+
+def _fold_hybrid(action: np.ndarray, cols: dict[str, np.ndarray], cfg: ImportConfig) -> tuple[np.ndarray, list[str]]:
+    """Position targets (N, 12) that drive the PD law exactly as a hybrid command does:
+    q_des + (kd dq_des + tau_ff) / kp, since kp (q_des - q) + kd (dq_des - qd) + tau_ff equals
+    kp (that - q) - kd qd before the torque limit. Returns them and which of the kinds
+    (``action_vel``, ``action_torque``) the log had; each kind is all 12 joints or none."""
+    folded = []
+    kp, kd = per_joint(cfg.kp), per_joint(cfg.kd)
+    for kind, columns, gain in (("action_vel", TARGET_VEL_COLUMNS, kd), ("action_torque", FEEDFORWARD_COLUMNS, None)):
+        have = [c for c in columns if c in cols]
+        if not have:
+            continue
+        if len(have) < len(columns):
+            raise UserError(f"a hybrid command's {kind} needs all 12 joints; the log has {len(have)}: "
+                            f"missing {', '.join(c for c in columns if c not in cols)}")
+        if cfg.action_mode != "position":
+            raise UserError(f"{kind}.* columns complete a position target (q_des); with --action-mode "
+                            f"{cfg.action_mode} the actions are already torques: leave them out")
+        if not (kp > 0).all():
+            raise UserError(f"{kind}.* columns are folded into the position targets through kp: every joint's "
+                            "--kp must be positive")
+        extra = np.column_stack([cols[c] for c in columns])
+        action = action + (extra if gain is None else gain * extra) / kp
+        folded.append(kind)
+    return action, folded
 
 
 def _time_steps(episode: np.ndarray, timestamp: np.ndarray) -> np.ndarray:
