@@ -37,6 +37,10 @@ With ``--velocity-filter TAU``, the robots low-pass the joint velocities they lo
 time constant TAU s, every physics step); the data checks name the lag and the diagnosis
 derives those velocities from the joint angles.
 
+With ``--feedforward``, the controllers send a hybrid command (q_des, dq_des, tau_ff; the motor
+runs kp (q_des - q) + kd (dq_des - qd) + tau_ff), logged as ``action.*``, ``action_vel.*`` and
+``action_torque.*``, which acn-import folds into the position targets.
+
 With ``--pairs``, logs with TWO hidden effects instead (``--auto``), one line each and:
 
 - ``pairs_both_named``: both hidden effects added, and nothing else;
@@ -181,7 +185,7 @@ def log_spec(args, seed: int, over: dict) -> LogSpec:
     return LogSpec(seconds=args.seconds, episodes=args.episodes, seed=seed, noise=args.noise, feedback=args.feedback,
                    drop=dropped(args), control_hz=args.control_hz, torque_control=args.torque_control,
                    stale=args.stale, glitches=args.glitches, jitter=args.jitter,
-                   velocity_filter=args.velocity_filter, **{"controller": "sines", **over})
+                   velocity_filter=args.velocity_filter, feedforward=args.feedforward, **{"controller": "sines", **over})
 
 
 def import_config(args) -> ImportConfig:
@@ -250,9 +254,13 @@ def main() -> None:
                     help="the control period varies by up to +- this share of it (imported with 1.2x that tolerance)")
     ap.add_argument("--velocity-filter", type=float, default=0.0,
                     help="s, time constant of a low-pass filter on the logged joint velocities")
+    ap.add_argument("--feedforward", action="store_true",
+                    help="hybrid commands: a velocity target and a feedforward torque beside the position target")
     ap.add_argument("--glitches", type=float, default=0.0,
                     help="share of rows with one reading off by robot_log.GLITCH x its noise (a corrupted packet)")
     args = ap.parse_args()
+    if args.feedforward and args.torque_control:
+        ap.error("--feedforward completes a position target; --torque-control logs torques: choose one")
     root = Path(tempfile.mkdtemp())
     cases, seed = (PAIRS, 300) if args.pairs else (OTHER, 700) if args.other else (CASES, 100)
     unknown = [n for n in (args.cases.split(",") if args.cases else []) if n not in cases]

@@ -13,7 +13,9 @@ converted. A map file renames and scales other columns onto these names:
 
 (value = scale * column + offset; a contact channel with a ``threshold`` becomes the 0/1 flag
 value > threshold, for a log of foot forces). Channels the log lacks are stored as NaN and listed in the
-metadata (``missing_channels``); joint positions and actions are the minimum.
+metadata (``missing_channels``); joint positions and actions are the minimum. A hybrid
+(MIT-style) command, ``action_vel.<joint>`` (rad/s) and ``action_torque.<joint>`` (N m) beside the
+position target, is folded into the target that drives the PD law the same way (``_fold_hybrid``).
 
 Transitions: s_{t+1} is the next row of the same episode. A row with a non-finite value, or a
 time step that differs from the control period by more than ``dt_tolerance`` of it, ends a
