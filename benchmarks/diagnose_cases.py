@@ -185,7 +185,8 @@ def log_spec(args, seed: int, over: dict) -> LogSpec:
     return LogSpec(seconds=args.seconds, episodes=args.episodes, seed=seed, noise=args.noise, feedback=args.feedback,
                    drop=dropped(args), control_hz=args.control_hz, torque_control=args.torque_control,
                    stale=args.stale, glitches=args.glitches, jitter=args.jitter,
-                   velocity_filter=args.velocity_filter, feedforward=args.feedforward, **{"controller": "sines", **over})
+                   velocity_filter=args.velocity_filter, feedforward=args.feedforward,
+                   **{"controller": "sines", **over})
 
 
 def import_config(args) -> ImportConfig:

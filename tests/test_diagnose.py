@@ -389,7 +389,8 @@ def test_low_pass_filtered_joint_velocities_are_derived_and_the_damping_is_found
     d = diagnose(m, Model.parse("mujoco"), cfg, automatic=True)
     assert [a.name for a in d.added] == ["joint_damping"] and d.verdict == "effect", d.reason
     assert close(d.added[0].fit.values["value"], 0.5)
-    assert "velocity_lag data check names were derived from the positions" in d.reason and "fix the data" not in d.reason
+    assert "velocity_lag data check names were derived from the positions" in d.reason, d.reason
+    assert "fix the data" not in d.reason
 
 
 def test_one_weak_motor_is_found_where_a_shared_strength_is_not_significant(tmp_path):

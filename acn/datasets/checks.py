@@ -54,7 +54,7 @@ REPEAT_SHARE = 0.01    # a sensor group with more repeated rows than this is a f
 MOVING = 1e-5          # SI units: a signal that changes less than this after a run is at rest (float32 steps)
 LAG_MIN = 0.004        # s: a velocity lagging (or leading) its position's rate by more is a finding (consistent
                        # logs: -0.4..0.9 ms at 50-200 Hz, sensor noise 0-3x, two gaits; acn-collect: -0.2..1.5 ms)
-LAG_BINS = 8          # bins of action changes the lag regression takes out (``lag``)
+LAG_BINS = 8           # bins of action changes the lag regression takes out (``lag``)
 LAG_Z = 8.0            # ... where the lag is this many standard errors from zero
 SENSOR_GROUPS = ("base_pos", "base_rpy", "joint_pos", "base_linvel", "base_angvel", "joint_vel", "imu_acc")
 
@@ -86,7 +86,8 @@ def check(episodes: list[Episode], dt: float, action_mode: str = "position") -> 
     out = pose(episodes)
     suspect = {c for f in out for c in f.channels}  # a velocity is not blamed for its position's unit
     out += velocities(episodes, dt, suspect)
-    out += velocity_lag(episodes, dt, {c for f in out for c in f.channels}) + stance_feet(states) + accelerometer(states) + contacts(states)
+    out += velocity_lag(episodes, dt, {c for f in out for c in f.channels})  # a lag is not blamed for a unit
+    out += stance_feet(states) + accelerometer(states) + contacts(states)
     if action_mode == "position":
         out += actions(episodes)
     return out + repeats(episodes)
@@ -101,15 +102,18 @@ def _runs(m: Measurements) -> list[tuple[int, int]]:
 
 def from_measurements(m: Measurements) -> list[Finding]:
     """``check`` on ``acn.datasets.measurements.Measurements`` (rows of an episode consecutive)."""
-    episodes = [(np.vstack([m.state[a:b], m.next_state[b - 1:b]]), m.action[a:b]) for a, b in _runs(m)]
-    return check(episodes, m.control.control_dt, m.control.action_mode)
+    return check(_episodes(m), m.control.control_dt, m.control.action_mode)
+
+
+def _episodes(m: Measurements) -> list[Episode]:
+    """``m``'s runs of consecutive transitions as (states, actions)."""
+    return [(np.vstack([m.state[a:b], m.next_state[b - 1:b]]), m.action[a:b]) for a, b in _runs(m)]
 
 
 def distrusted(m: Measurements) -> list[str]:
     """Channels of ``m`` that a ``DERIVED`` check finds untrustworthy (``velocity_lag``): the
     diagnosis derives them from the positions, as if they were not logged."""
-    episodes = [(np.vstack([m.state[a:b], m.next_state[b - 1:b]]), m.action[a:b]) for a, b in _runs(m)]
-    episodes = [(s, a) for s, a in episodes if len(s) >= 2]
+    episodes = [(np.asarray(s, float), a) for s, a in _episodes(m) if len(s) >= 2]
     if not episodes:
         return []
     dt = m.control.control_dt
@@ -331,8 +335,8 @@ def lag(episodes: list[Episode], dt: float, group: str) -> tuple[float, float]:
 
 def velocity_lag(episodes: list[Episode], dt: float, suspect: set[str] = frozenset()) -> list[Finding]:
     """A finding per velocity group (joint_vel, base_angvel) whose readings lag or lead the motion
-    of their positions (``lag``) by more than ``LAG_MIN``, ``LAG_Z`` standard
-    errors from zero. The diagnosis derives those velocities from the positions instead
+    of their positions (``lag``) by more than ``LAG_MIN``, ``LAG_Z`` standard errors from zero.
+    The diagnosis derives those velocities from the positions instead
     (``DERIVED``): a model compared with a filtered velocity reads the filter's lag as inertia
     or friction."""
     out = []
@@ -341,10 +345,10 @@ def velocity_lag(episodes: list[Episode], dt: float, suspect: set[str] = frozens
             continue
         tau, z = lag(episodes, dt, group)
         if np.isfinite(tau) and abs(tau) > LAG_MIN and abs(z) > LAG_Z:
-            how = f"lag the motion by {1e3 * tau:.0f} ms" if tau > 0 else f"lead the motion by {-1e3 * tau:.0f} ms"
-            out.append(Finding("velocity_lag", GROUPS[group], f"the readings of {_names(GROUPS[group])} {how} of "
-                               f"their positions (z {abs(z):.0f}): low-pass filtered, or read at another time than the "
-                               "positions? the diagnosis derives them from the positions instead"))
+            out.append(Finding("velocity_lag", GROUPS[group], f"the readings of {_names(GROUPS[group])} "
+                               f"{'lag' if tau > 0 else 'lead'} the motion of their positions by {1e3 * abs(tau):.0f} "
+                               f"ms (z {abs(z):.0f}): low-pass filtered, or read at another time than the positions? "
+                               "the diagnosis derives them from the positions instead"))
     return out
 
 
