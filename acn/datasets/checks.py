@@ -53,7 +53,7 @@ REPEAT_RUN = 3         # at most this many rows equal to the one before count as
 REPEAT_SHARE = 0.01    # a sensor group with more repeated rows than this is a finding
 MOVING = 1e-5          # SI units: a signal that changes less than this after a run is at rest (float32 steps)
 LAG_MIN = 0.004        # s: a velocity lagging (or leading) its position's rate by more is a finding (consistent
-                       # logs: -0.4..0.9 ms at 50-200 Hz, sensor noise 0-3x, two gaits; acn-collect: -0.2..1.5 ms)
+                       # logs: -0.6..1.8 ms at 50-200 Hz, noise 0-3x, two gaits, acn-collect: 0.6..1.9 ms; README)
 LAG_BINS = 8           # bins of action changes the lag regression takes out (``lag``)
 LAG_Z = 8.0            # ... where the lag is this many standard errors from zero
 SENSOR_GROUPS = ("base_pos", "base_rpy", "joint_pos", "base_linvel", "base_angvel", "joint_vel", "imu_acc")
