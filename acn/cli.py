@@ -77,6 +77,16 @@ def _joint_gains(minimum: float, inclusive: bool) -> Callable[[str], "float | tu
     return parse
 
 
+def _leg_order(text: str) -> tuple[str, ...]:
+    """An argparse type: the four legs FR, FL, RR, RL in some order, comma-separated."""
+    from acn.toolkit.state import FOOT_NAMES
+
+    order = tuple(t.strip() for t in text.split(","))
+    if sorted(order) != sorted(FOOT_NAMES):
+        raise argparse.ArgumentTypeError(f"expected FR, FL, RR and RL once each, comma-separated; got {text!r}")
+    return order
+
+
 _GAINS_HELP = "; one number for every joint, or hip,thigh,calf (every leg), or 12 in the order FR, FL, RR, RL"
 
 
@@ -536,6 +546,9 @@ def import_parser() -> argparse.ArgumentParser:
     p.add_argument("--linvel-frame", choices=("body", "world"), default="body",
                    help="the frame the log's base_linvel_* are in (world: rotated into the body frame the schema uses)")
     p.add_argument("--angvel-frame", choices=("body", "world"), default="body", help="the same for base_angvel_*")
+    p.add_argument("--leg-order", type=_leg_order, default=None, metavar="FL,FR,RL,RR",
+                   help="the order of the legs in the log's columns, if not the schema's FR,FL,RR,RL "
+                   "(legged_gym and Isaac Gym: FL,FR,RL,RR)")
     p.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
     return p
 
@@ -562,7 +575,8 @@ def import_main(argv: list[str] | None = None) -> int:
             raise UserError(f"output directory {args.out} exists (use --overwrite to replace it)")
         cfg = ImportConfig(control_hz=args.control_hz, kp=args.kp, kd=args.kd, torque_limit=args.torque_limit,
                            action_mode=args.action_mode, physics_hz=args.physics_hz, dt_tolerance=args.dt_tolerance,
-                           linvel_frame=args.linvel_frame, angvel_frame=args.angvel_frame)
+                           linvel_frame=args.linvel_frame, angvel_frame=args.angvel_frame,
+                           **({"leg_order": args.leg_order} if args.leg_order else {}))
         path, r = import_log(args.log, args.out, cfg, args.map_file, overwrite=args.overwrite)
         print(f"read {r.rows} rows: {r.transitions} transitions in {r.episodes} episode(s); cut {r.cut_nonfinite} "
               f"row(s) with non-finite values, split at {r.time_breaks} wrong time step(s), dropped "

@@ -88,6 +88,29 @@ def test_a_hybrid_command_is_folded_into_the_position_targets(tmp_path, acn):
     assert not (tmp_path / "p").exists()
 
 
+def test_legs_in_legged_gym_order_are_named_and_imported_with_leg_order(tmp_path, acn):
+    """A log whose legs come in legged_gym's order (FL, FR, RL, RR) under the schema's names: the
+    data check names the order, and --leg-order imports it in ours."""
+    spec = LogSpec(seconds=2.0, episodes=2, seed=7, noise=1.0)
+    rows = simulate(spec)
+    theirs = {"FR": "FL", "FL": "FR", "RR": "RL", "RL": "RR"}  # the log's FR columns hold the FL leg, ...
+    swapped = {}
+    for name, values in rows.items():
+        leg = next((g for g in theirs if name.startswith(g + "_") or name.startswith("action." + g + "_")), None)
+        swapped[name if leg is None else name.replace(leg + "_", theirs[leg] + "_", 1)] = values
+    pacsv.write_csv(pa.table(swapped), str(tmp_path / "log.csv"))
+    r = acn("import", str(tmp_path / "log.csv"), "--out", str(tmp_path / "as_is"), *CONTROL)
+    assert r.returncode == 0 and "check (leg_order)" in r.stdout and "--leg-order FL,FR,RL,RR" in r.stdout, r.stdout
+    assert "check (stance_feet)" not in r.stdout  # the order explains where the feet are
+    r = acn("import", str(tmp_path / "log.csv"), "--out", str(tmp_path / "ds"), *CONTROL, "--leg-order", "FL,FR,RL,RR")
+    assert r.returncode == 0 and "check (" not in r.stdout, r.stdout
+    m = load_measurements(tmp_path / "ds")
+    q = np.column_stack([rows[f"{j}_pos"][:49] for j in JOINT_NAMES])
+    np.testing.assert_allclose(m.state[:49, [STATE_NAMES.index(f"{j}_pos") for j in JOINT_NAMES]], q, atol=1e-5)
+    r = acn("import", str(tmp_path / "log.csv"), "--out", str(tmp_path / "bad"), *CONTROL, "--leg-order", "FL,FR,RL")
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "FR, FL, RR and RL" in r.stderr
+
+
 def test_bad_rows_split_episodes_and_are_counted(tmp_path, log_rows, acn):
     cols = {k: v.copy() for k, v in log_rows.items()}
     cols["timestamp"][10:] += 0.013  # one time step of 33 ms instead of 20 ms

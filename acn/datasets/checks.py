@@ -14,6 +14,8 @@ that must agree by the schema's definitions (``acn.toolkit.state``), never with 
 - ``pose``: joint angles inside the A1's joint ranges (URDF), the trunk upright, its height;
 - ``stance_feet``: feet the log marks as touching the ground (or the lowest foot) at ground
   height, by forward kinematics of the trunk pose and joint angles;
+- ``leg_order``: whether the legs, read in another order, put the stance feet on the ground far
+  better (legged_gym and Isaac Gym order the A1's legs FL, FR, RL, RR; ours is FR, FL, RR, RL);
 - ``accelerometer``: its mean reads +9.81 m/s^2 on z for a level trunk (gravity included);
 - ``contacts``: 0/1 flags; ``actions``: position targets near the joint angles they drive;
 - ``velocity_lag``: joint velocities and the gyroscope against the central rate of change of
@@ -36,7 +38,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from acn.toolkit.rotations import rpy_rate_to_body, rpy_to_matrices
-from acn.toolkit.state import GROUPS, JOINT_NAMES, SLICES, STATE_NAMES, wrap_angle
+from acn.toolkit.state import FOOT_NAMES, GROUPS, JOINT_NAMES, SLICES, STATE_NAMES, wrap_angle
 
 if TYPE_CHECKING:
     from acn.datasets.measurements import Measurements
@@ -56,6 +58,8 @@ LAG_MIN = 0.004        # s: a velocity lagging (or leading) its position's rate 
                        # logs: -0.6..1.8 ms at 50-200 Hz, noise 0-3x, two gaits, acn-collect: 0.6..1.9 ms; README)
 LAG_BINS = 8           # bins of action changes the lag regression takes out (``lag``)
 LAG_Z = 8.0            # ... where the lag is this many standard errors from zero
+LEG_ORDER_GAIN = 0.5   # another leg order is named where its stance feet spread at most this share of the log's
+LEG_ORDER_FROM = 0.03  # m: other orders are tried where the log's spreads the stance feet more (consistent: <= 2.2)
 SENSOR_GROUPS = ("base_pos", "base_rpy", "joint_pos", "base_linvel", "base_angvel", "joint_vel", "imu_acc")
 
 
@@ -87,7 +91,9 @@ def check(episodes: list[Episode], dt: float, action_mode: str = "position") -> 
     suspect = {c for f in out for c in f.channels}  # a velocity is not blamed for its position's unit
     out += velocities(episodes, dt, suspect)
     out += velocity_lag(episodes, dt, {c for f in out for c in f.channels})  # a lag is not blamed for a unit
-    out += stance_feet(states) + accelerometer(states) + contacts(states)
+    order = leg_order(states)
+    out += order or stance_feet(states)  # the legs' order explains where the stance feet are
+    out += accelerometer(states) + contacts(states)
     if action_mode == "position":
         out += actions(episodes)
     return out + repeats(episodes)
@@ -421,6 +427,52 @@ def stance_feet(states: np.ndarray, most: int = 4000) -> list[Finding]:
                     "of mass); or, physics, the joint encoders' zeros are off by a few degrees (effect encoder_offset)"
                     + (", or the feet sink into soft ground (effect ground_softness)" if sink else ""),
                     may_be=("encoder_offset", "base_frame_offset") + (("ground_softness",) if sink else ()))]
+
+
+def relabel_legs(states: np.ndarray, order: tuple[str, ...]) -> np.ndarray:
+    """(n, 43) states whose legs were logged in ``order`` (the leg whose joints and contact flag
+    sit where the schema has ``FOOT_NAMES[i]`` is really ``order[i]``), in the schema's order."""
+    out = np.array(states, dtype=np.float64)
+    for i, leg in enumerate(order):
+        k = FOOT_NAMES.index(leg)
+        for g in ("joint_pos", "joint_vel"):
+            base = SLICES[g].start
+            out[:, base + 3 * k: base + 3 * k + 3] = states[:, base + 3 * i: base + 3 * i + 3]
+        out[:, SLICES["contact"].start + k] = states[:, SLICES["contact"].start + i]
+    return out
+
+
+def leg_order(states: np.ndarray, most: int = 2000) -> list[Finding]:
+    """A finding where the legs read in another order (any of the 23) put the feet that carry the
+    robot on the ground far better: the 10-90 % spread of their heights by forward kinematics
+    within the stance thresholds, and at most ``LEG_ORDER_GAIN`` of the spread in the log's
+    order and of the next best order's (on consistent logs the schema's order spreads 0.7-1 cm,
+    the next best 2.8-8 cm)."""
+    import itertools
+
+    from acn.toolkit.frames import Stance
+
+    def spread(order) -> tuple[float, float]:
+        stance = Stance(relabel_legs(states, order), most)
+        if len(stance.s) < MIN_ROWS:
+            return float("nan"), float("nan")
+        lo, med, hi = np.percentile(stance.carrying(np.zeros(6)), [10, 50, 90])
+        return float(hi - lo), float(med)
+
+    logged = spread(FOOT_NAMES)[0]
+    if not np.isfinite(logged) or logged <= LEG_ORDER_FROM:  # the log's order fits
+        return []
+    tried = sorted((spread(o) + (o,) for o in itertools.permutations(FOOT_NAMES) if o != FOOT_NAMES),
+                   key=lambda r: r[0])
+    (best, med, order), second = tried[0], tried[1][0]
+    if not (best <= STANCE_SPREAD and abs(med) <= STANCE_MEDIAN and best <= LEG_ORDER_GAIN * min(logged, second)):
+        return []
+    names = ",".join(order)
+    hint = " (legged_gym and Isaac Gym use this order)" if order == ("FL", "FR", "RL", "RR") else ""
+    return [Finding("leg_order", GROUPS["joint_pos"] + GROUPS["joint_vel"] + GROUPS["contact"],
+                    f"the legs look logged in the order {', '.join(order)}{hint}: read so, the feet that carry the "
+                    f"robot spread {100 * best:.1f} cm around the ground by forward kinematics, against "
+                    f"{100 * logged:.1f} cm in the schema's order (FR, FL, RR, RL): import with --leg-order {names}")]
 
 
 # ----- sensors and actions ---------------------------------------------------------------------

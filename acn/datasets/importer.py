@@ -46,7 +46,7 @@ from acn.toolkit.backends.base import joint_gains
 from acn.toolkit.collector import FALL_RULE, Episode, Trace, fallen
 from acn.toolkit.robot import ModelParams, per_joint
 from acn.toolkit.rotations import quat_to_rpy, rpy_to_matrices
-from acn.toolkit.state import ACTION_NAMES, GROUPS, SLICES, STATE_NAMES
+from acn.toolkit.state import ACTION_NAMES, FOOT_NAMES, GROUPS, SLICES, STATE_NAMES
 
 ACTION_COLUMNS = tuple(f"action.{j}" for j in ACTION_NAMES)
 EFFORT_COLUMNS = tuple(f"effort.{j}" for j in ACTION_NAMES)
@@ -76,6 +76,7 @@ class ImportConfig:
     dt_tolerance: float = 0.1  # fraction of the control period a time step may deviate
     linvel_frame: str = "body"  # the frame the log's base_linvel is in (world: rotated into the body frame)
     angvel_frame: str = "body"  # the same for base_angvel
+    leg_order: tuple[str, ...] = FOOT_NAMES  # the legs as the log orders them (legged_gym: FL, FR, RL, RR)
 
 
 @dataclass
@@ -200,7 +201,10 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
     for name, frame in (("--linvel-frame", cfg.linvel_frame), ("--angvel-frame", cfg.angvel_frame)):
         if frame not in FRAMES:
             raise UserError(f"{name} must be one of {', '.join(FRAMES)}, got {frame!r}")
+    if sorted(cfg.leg_order) != sorted(FOOT_NAMES):
+        raise UserError(f"--leg-order must name each of {', '.join(FOOT_NAMES)} once, got {', '.join(cfg.leg_order)}")
     cols = _orientation(resolve_columns(read_table(log), read_map(Path(map_path) if map_path else None)))
+    cols = _reorder_legs(cols, tuple(cfg.leg_order))
     n = len(next(iter(cols.values()))) if cols else 0
     if "timestamp" not in cols:
         raise UserError(f"{log} has no timestamp column (s); map one with --map")
@@ -265,6 +269,7 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
                           "time_step_spread": round(spread, 4), "folded_into_position_targets": folded,
                           "segments_too_short": dropped, "dt_tolerance": cfg.dt_tolerance,
                           "linvel_frame": cfg.linvel_frame, "angvel_frame": cfg.angvel_frame,
+                          "leg_order": list(cfg.leg_order),
                           "checks": [f.to_json() for f in report.findings]}
         if writer.num_episodes == 0:
             raise UserError(f"{log}: no two consecutive good rows at {cfg.control_hz} Hz: nothing to import "
@@ -336,6 +341,20 @@ def _fold_hybrid(action: np.ndarray, cols: dict[str, np.ndarray], cfg: ImportCon
         action = action + (extra if gain is None else gain * extra) / kp
         folded.append(kind)
     return action, folded
+
+
+def _reorder_legs(cols: dict[str, np.ndarray], order: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """Columns renamed from the log's leg order to the schema's: what the log (or its map) names
+    leg ``FOOT_NAMES[i]`` (joints, actions, efforts, contact) is leg ``order[i]``."""
+    if order == FOOT_NAMES:
+        return cols
+    rename = {}
+    for mine, theirs in zip(FOOT_NAMES, order):
+        rename[f"{mine}_contact"] = f"{theirs}_contact"
+        for joint in ("hip", "thigh", "calf"):
+            for pattern in ("{}_pos", "{}_vel", "action.{}", "effort.{}", "action_vel.{}", "action_torque.{}"):
+                rename[pattern.format(f"{mine}_{joint}")] = pattern.format(f"{theirs}_{joint}")
+    return {rename.get(name, name): values for name, values in cols.items()}
 
 
 def _time_steps(episode: np.ndarray, timestamp: np.ndarray) -> np.ndarray:
