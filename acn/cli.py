@@ -525,6 +525,7 @@ def view_main(argv: list[str] | None = None) -> int:
 # ----------------------------------------------------------------------------- acn-import
 def import_parser() -> argparse.ArgumentParser:
     from acn.toolkit.backends import ACTION_MODES
+    from acn.toolkit.state import FOOT_NAMES
 
     p = _Parser(prog="acn-import", description="Turn a robot log (CSV or Parquet, one row per control step) into a "
                 "measurement dataset (LeRobot v3.0, the schema of acn-collect) that acn-diagnose reads.")
@@ -546,7 +547,7 @@ def import_parser() -> argparse.ArgumentParser:
     p.add_argument("--linvel-frame", choices=("body", "world"), default="body",
                    help="the frame the log's base_linvel_* are in (world: rotated into the body frame the schema uses)")
     p.add_argument("--angvel-frame", choices=("body", "world"), default="body", help="the same for base_angvel_*")
-    p.add_argument("--leg-order", type=_leg_order, default=None, metavar="FL,FR,RL,RR",
+    p.add_argument("--leg-order", type=_leg_order, default=FOOT_NAMES, metavar="FL,FR,RL,RR",
                    help="the order of the legs in the log's columns, if not the schema's FR,FL,RR,RL "
                    "(legged_gym and Isaac Gym: FL,FR,RL,RR)")
     p.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
@@ -575,8 +576,7 @@ def import_main(argv: list[str] | None = None) -> int:
             raise UserError(f"output directory {args.out} exists (use --overwrite to replace it)")
         cfg = ImportConfig(control_hz=args.control_hz, kp=args.kp, kd=args.kd, torque_limit=args.torque_limit,
                            action_mode=args.action_mode, physics_hz=args.physics_hz, dt_tolerance=args.dt_tolerance,
-                           linvel_frame=args.linvel_frame, angvel_frame=args.angvel_frame,
-                           **({"leg_order": args.leg_order} if args.leg_order else {}))
+                           linvel_frame=args.linvel_frame, angvel_frame=args.angvel_frame, leg_order=args.leg_order)
         path, r = import_log(args.log, args.out, cfg, args.map_file, overwrite=args.overwrite)
         print(f"read {r.rows} rows: {r.transitions} transitions in {r.episodes} episode(s); cut {r.cut_nonfinite} "
               f"row(s) with non-finite values, split at {r.time_breaks} wrong time step(s), dropped "

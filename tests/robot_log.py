@@ -179,8 +179,9 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
         d.qpos[3:7] = [1, 0, 0, 0]
         d.qpos[qadr] = STANCE + rng.uniform(-0.03, 0.03, 12) - offset
         mujoco.mj_forward(m, d)
-        queue = [np.stack([STANCE, np.zeros(12), np.zeros(12)])] * s.latency_steps  # (q_des, dq_des, tau_ff) wait
-        ff_phase = rng.uniform(0, 2 * np.pi, 12) if s.feedforward else None          # this many physics steps
+        # (q_des, dq_des, tau_ff): a command waits this many physics steps
+        queue = [np.stack([STANCE, np.zeros(12), np.zeros(12)])] * s.latency_steps
+        ff_phase = rng.uniform(0, 2 * np.pi, 12) if s.feedforward else None
         v_prev = d.qvel[0:3].copy()
         touching = np.ones(4)
         qd_logged = d.qvel[dadr].copy()  # the low-passed joint velocities (velocity_filter)
