@@ -83,13 +83,11 @@ Episode = tuple[np.ndarray, np.ndarray]  # (states (n + 1, 43), actions (n, 12))
 def check(episodes: list[Episode], dt: float, action_mode: str = "position") -> list[Finding]:
     """Every check on ``episodes`` (NaN columns are channels the log lacks), ``dt`` the control
     period in s. Returns the findings, empty when the log is consistent."""
-    episodes = [(np.asarray(s, float), np.asarray(a, float)) for s, a in episodes if len(s) >= 2]
+    episodes = _usable(episodes)
     if not episodes:
         return []
     states = np.concatenate([s for s, _ in episodes])
-    out = pose(episodes)
-    suspect = {c for f in out for c in f.channels}  # a velocity is not blamed for its position's unit
-    out += velocities(episodes, dt, suspect)
+    out = _units(episodes, dt)
     out += velocity_lag(episodes, dt, {c for f in out for c in f.channels})  # a lag is not blamed for a unit
     order = leg_order(states)
     out += order or stance_feet(states)  # the legs' order explains where the stance feet are
@@ -97,6 +95,18 @@ def check(episodes: list[Episode], dt: float, action_mode: str = "position") -> 
     if action_mode == "position":
         out += actions(episodes)
     return out + repeats(episodes)
+
+
+def _usable(episodes: list[Episode]) -> list[Episode]:
+    """``episodes`` of at least two states, as float arrays."""
+    return [(np.asarray(s, float), np.asarray(a, float)) for s, a in episodes if len(s) >= 2]
+
+
+def _units(episodes: list[Episode], dt: float) -> list[Finding]:
+    """The pose and velocity findings (units, signs, frames), which ``velocity_lag`` does not
+    blame for a lag; a velocity is not blamed for its position's unit either."""
+    out = pose(episodes)
+    return out + velocities(episodes, dt, {c for f in out for c in f.channels})
 
 
 def _runs(m: Measurements) -> list[tuple[int, int]]:
@@ -119,11 +129,11 @@ def _episodes(m: Measurements) -> list[Episode]:
 def distrusted(m: Measurements) -> list[str]:
     """Channels of ``m`` that a ``DERIVED`` check finds untrustworthy (``velocity_lag``): the
     diagnosis derives them from the positions, as if they were not logged."""
-    episodes = [(np.asarray(s, float), a) for s, a in _episodes(m) if len(s) >= 2]
+    episodes = _usable(_episodes(m))
     if not episodes:
         return []
     dt = m.control.control_dt
-    suspect = {c for f in pose(episodes) + velocities(episodes, dt) for c in f.channels}  # as ``check``
+    suspect = {c for f in _units(episodes, dt) for c in f.channels}  # as ``check``
     return [c for f in velocity_lag(episodes, dt, suspect) for c in f.channels]
 
 
