@@ -313,8 +313,9 @@ def fit_parser() -> argparse.ArgumentParser:
     p.add_argument("--sensor-inputs", action=argparse.BooleanOptionalAction, default=d.sensor_inputs,
                    help="F also reads the contact and IMU readings (default: on for paper and mujoco-jacobian)")
     p.add_argument("--threads", type=_positive_int, default=d.threads, help="re-simulation threads")
-    p.add_argument("--train-threads", type=_positive_int, default=d.train_threads,
-                   help="torch threads in training (default 1: more is faster only on an otherwise idle machine)")
+    p.add_argument("--train-threads", type=_nonneg_int, default=d.train_threads,
+                   help="torch threads in training on a CPU (default 0: whichever count is fastest, timed every "
+                   "few seconds while training; more threads are faster only on an otherwise idle machine)")
     p.add_argument("--cuda-graph", action=argparse.BooleanOptionalAction, default=d.cuda_graph,
                    help="with --device cuda: replay each full-batch training step as one CUDA graph (default on)")
     p.add_argument("--calibrate", action=argparse.BooleanOptionalAction, default=d.calibrate,

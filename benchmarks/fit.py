@@ -8,9 +8,16 @@ fit_samples_per_s        acn-fit's loop (acn.models.fit.train): tensors held who
                          one flat parameter buffer (acn.models.backprop: the two first layers as one
                          matmul, fused Adam), bf16 weights where the CPU has native bf16 (fit_bf16=1),
                          the loss's gradient written out
-fit_speedup              their ratio (the baseline on torch's default threads, acn-fit's loop on
-                         its default FitConfig.train_threads = 1); target >= 2.5
-fit_speedup_1_thread     the same with the baseline on one thread too (equal resources)
+fit_threads              the torch thread count acn-fit's loop ended on: by default it times one
+                         thread against all of them every few seconds and runs on the faster
+                         (acn.models.threads.AdaptiveThreads)
+fit_speedup              fit / baseline, each on its default threads (the baseline on torch's,
+                         all cores); target >= 2.5
+fit_1_thread_samples_per_s  acn-fit's loop held on one thread (--train-threads 1)
+fit_speedup_1_thread     fit_1_thread / the baseline on one thread too (equal resources, one core)
+fit_adaptive_vs_1_thread fit / fit_1_thread: what choosing the count gains (or costs) here
+inverse_samples_per_s    acn-fit's loop with inverse's network and batch (512 wide, batch 64; the
+                         default variant, what `make demo` trains), adaptive and on one thread
 fit_gflops               training FLOP/s of acn-fit's loop (forward + backward ~ 3x forward)
 matmul_gflops            this machine's float32 matmul rate on the network's widest layer shape
 matmul_bf16_gflops       the same in bf16
@@ -30,21 +37,28 @@ cuda_fit_speedup             cuda_fit / cuda_baseline;  cuda_graph_speedup  cuda
 cuda_inverse_samples_per_s   acn-fit's loop with inverse's network and batch (512 wide, batch 64)
 
 Data: synthetic rows with the real shapes (40 state + 12 action inputs, 33 residual channels):
-speed does not depend on the values. Usage: python benchmarks/fit.py [--samples 100000]
+speed does not depend on the values. Usage: python benchmarks/fit.py [--samples 100000] [--busy 1]
+(--busy N: every training loop runs beside N processes that keep a core busy each, as on a shared
+machine; busy_processes= says how many).
 """
 
 from __future__ import annotations
 
 import argparse
+import subprocess
+import sys
 import time
+from contextlib import contextmanager
 from dataclasses import replace
+from typing import Iterator
 
 import torch
 from torch.utils.data import DataLoader, Dataset
 
 from acn.models.acn import INPUT_CHANNELS, OUTPUT_CHANNELS
-from acn.models.corrector import Corrector, default_config, torch_threads
+from acn.models.corrector import Corrector, default_config
 from acn.models.fit import FitConfig, Split, train
+from acn.models.threads import torch_threads
 
 N_IN, N_OUT, N_ACT = len(INPUT_CHANNELS) + 12, len(OUTPUT_CHANNELS), 12
 
@@ -109,38 +123,74 @@ def matmul_gflops(seconds: float = 1.0, dtype=torch.float32) -> float:
     return n * 2 * 256 * 256 * 396 / (time.perf_counter() - t) / 1e9
 
 
+def ours(cfg: FitConfig, model: Corrector, split: Split) -> tuple[float, int]:
+    """acn-fit's loop from a cold start, as acn-fit runs it: samples/s and the thread count it
+    ended on."""
+    t = time.perf_counter()
+    history = train(model, split, cfg)
+    return len(split) * cfg.epochs / (time.perf_counter() - t), history[-1].get("threads", 0)
+
+
+def inverse_split(x: torch.Tensor, r: torch.Tensor) -> tuple[Corrector, Split]:
+    model = Corrector(default_config("inverse", 512, 2))
+    n_in = model.net.action_net[0].in_features
+    return model, Split(x[:, :n_in].contiguous(), r, torch.randn(len(x), N_OUT, N_ACT), torch.randn(len(x), N_ACT),
+                        torch.ones(N_ACT))
+
+
+@contextmanager
+def busy_cores(n: int) -> Iterator[None]:
+    """``n`` other processes spinning on the CPU for the block: a shared machine's load."""
+    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
+    try:
+        yield
+    finally:
+        for p in procs:
+            p.kill()
+            p.wait()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--samples", type=int, default=100_000)
     ap.add_argument("--epochs", type=int, default=2)
     ap.add_argument("--label-rows", type=int, default=500)
     ap.add_argument("--device", default="cpu", help="cpu, or cuda: the GPU loops instead (no labelling)")
+    ap.add_argument("--busy", type=int, default=0, help="run the training loops beside this many spinning processes")
     args = ap.parse_args()
     torch.manual_seed(0)
     x, r = torch.randn(args.samples, N_IN), torch.randn(args.samples, N_OUT)
     if args.device != "cpu":
         return gpu(x, r, args.epochs, args.device)
     make = lambda: Corrector(default_config("paper", 256, 2))  # noqa: E731
-    base = baseline(make(), x, r, args.epochs)
-    with torch_threads(1):
-        base_1 = baseline(make(), x, r, args.epochs)
-    model = make()
     cfg = FitConfig(variant="paper", epochs=args.epochs)  # the paper's network and batch 256
-    t = time.perf_counter()
-    train(model, Split(x, r, None), cfg)
-    ours = args.samples * args.epochs / (time.perf_counter() - t)
-    gflops = ours * flops_per_sample(model) / 1e9
+    with busy_cores(args.busy):
+        base = baseline(make(), x, r, args.epochs)
+        with torch_threads(1):
+            base_1 = baseline(make(), x, r, args.epochs)
+        fit, threads = ours(cfg, make(), Split(x, r, None))
+        fit_1, _ = ours(replace(cfg, train_threads=1), make(), Split(x, r, None))
+        inverse = FitConfig(variant="inverse", epochs=1)  # its defaults: 512 wide, batch 64, cosine
+        inv, _ = ours(inverse, *inverse_split(x, r))
+        inv_1, _ = ours(replace(inverse, train_threads=1), *inverse_split(x, r))
+    gflops = fit * flops_per_sample(make()) / 1e9
     peak = matmul_gflops()
+    print(f"busy_processes={args.busy}")
     print(f"baseline_samples_per_s={base:.0f}")
-    print(f"fit_samples_per_s={ours:.0f}")
-    print(f"fit_speedup={ours / base:.3f}")
+    print(f"fit_samples_per_s={fit:.0f}")
+    print(f"fit_threads={threads}")
+    print(f"fit_speedup={fit / base:.3f}")
     print(f"baseline_1_thread_samples_per_s={base_1:.0f}")
-    print(f"fit_speedup_1_thread={ours / base_1:.3f}")
+    print(f"fit_1_thread_samples_per_s={fit_1:.0f}")
+    print(f"fit_speedup_1_thread={fit_1 / base_1:.3f}")
+    print(f"fit_adaptive_vs_1_thread={fit / fit_1:.3f}")
+    print(f"inverse_samples_per_s={inv:.0f}")
+    print(f"inverse_1_thread_samples_per_s={inv_1:.0f}")
     print(f"fit_gflops={gflops:.1f}")
     print(f"matmul_gflops={peak:.1f}")
     print(f"fit_fraction_of_matmul={gflops / peak:.3f}")
     print(f"matmul_bf16_gflops={matmul_gflops(dtype=torch.bfloat16):.1f}")
-    print(f"million_frames_10_epochs_s={1e7 / ours:.0f}")
+    print(f"million_frames_10_epochs_s={1e7 / fit:.0f}")
     print(f"torch_threads={torch.get_num_threads()}")
     print(f"fit_bf16={int(cfg.use_bf16())}")
     labelling(args.label_rows)
@@ -155,7 +205,7 @@ def gpu(x: torch.Tensor, r: torch.Tensor, epochs: int, device: str) -> None:
     make = lambda: Corrector(default_config("paper", 256, 2))  # noqa: E731
     n = len(x)
 
-    def ours(cfg: FitConfig, model: Corrector, split: Split) -> float:
+    def ours_gpu(cfg: FitConfig, model: Corrector, split: Split) -> float:
         split, b = split.to(device), cfg.resolved().batch_size
         model.net.to(device)
         warm = Split(*(None if t is None else t[:4 * b] for t in (split.x, split.residual, split.jacobian, split.label)),
@@ -169,13 +219,10 @@ def gpu(x: torch.Tensor, r: torch.Tensor, epochs: int, device: str) -> None:
 
     base = baseline(make(), x, r, epochs, device)
     paper = FitConfig(variant="paper", epochs=epochs, device=device)
-    graphed = ours(paper, make(), Split(x, r, None))
-    eager = ours(replace(paper, cuda_graph=False), make(), Split(x, r, None))
-    inv_model = Corrector(default_config("inverse", 512, 2))
-    n_in = inv_model.net.action_net[0].in_features
+    graphed = ours_gpu(paper, make(), Split(x, r, None))
+    eager = ours_gpu(replace(paper, cuda_graph=False), make(), Split(x, r, None))
     inverse = FitConfig(variant="inverse", epochs=epochs, device=device)  # its defaults: 512 wide, batch 64, cosine
-    inv = ours(inverse, inv_model, Split(x[:, :n_in].contiguous(), r, torch.randn(n, N_OUT, N_ACT),
-                                          torch.randn(n, N_ACT), torch.ones(N_ACT)))
+    inv = ours_gpu(inverse, *inverse_split(x, r))
     print(f"device={torch.cuda.get_device_name()}")
     print(f"cuda_baseline_samples_per_s={base:.0f}")
     print(f"cuda_fit_samples_per_s={graphed:.0f}")

@@ -9,9 +9,7 @@ Nothing is pickled: weights are safetensors, everything else is JSON.
 from __future__ import annotations
 
 import json
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 import torch
@@ -24,22 +22,6 @@ from acn.models.acn import LEARNED_JACOBIAN, OUTPUT_CHANNELS, ActionCorrectionNe
 from acn.toolkit.state import ACTION_DIM, STATE_DIM, STATE_NAMES
 
 WEIGHTS, CONFIG = "model.safetensors", "config.json"
-
-
-@contextmanager
-def torch_threads(n: int | None) -> Iterator[None]:
-    """Run a block on ``n`` torch intra-op threads (None: leave torch's setting). Small networks
-    gain little from more threads and lose much on a busy machine (measured on 2 shared cores,
-    batch 256: 36k samples/s on one thread, 600 on two; single-row calls 0.1 ms vs 8 ms)."""
-    if not n:
-        yield
-        return
-    before = torch.get_num_threads()
-    torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
 FORMAT = "acn-corrector/1"
 
 

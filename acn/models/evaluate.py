@@ -47,7 +47,7 @@ import numpy as np
 
 from acn.datasets.reader import state_difference
 from acn.models.acn import OUTPUT_CHANNELS
-from acn.models.corrector import torch_threads
+from acn.models.threads import torch_threads
 from acn.models.labels import SolveConfig
 from acn.models.oracle import OUTPUT_INDEX, SameStateOracle, TrackingOracle
 from acn.toolkit.collector import CollectConfig, Episode, PairedRollout, Trace, fallen

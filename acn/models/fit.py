@@ -47,6 +47,7 @@ import shutil
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import torch
@@ -56,9 +57,10 @@ from acn.datasets.reader import PairedTransitions, load_paired, percentile_filte
 from acn.errors import UserError
 from acn.models.acn import INPUT_CHANNELS, LABELLED, OUTPUT_CHANNELS, VARIANTS, acn_loss, input_channels, regression_loss
 from acn.models.backprop import FlatMLPs
-from acn.models.corrector import Corrector, default_config, torch_threads
+from acn.models.corrector import Corrector, default_config
 from acn.models.evaluate import output_spread
 from acn.models.labels import Solution, SolveConfig
+from acn.models.threads import AdaptiveThreads, torch_threads
 from acn.toolkit.policies import POLICIES
 from acn.toolkit.state import STATE_NAMES
 
@@ -97,7 +99,7 @@ class FitConfig:
     seed: int = 0
     device: str = "cpu"
     precision: str = "auto"         # bf16 weights and matmuls in training where the CPU/GPU has bf16 natively
-    train_threads: int | None = 1   # torch threads in training (None: torch's default; see corrector.torch_threads)
+    train_threads: int = 0          # torch threads in training on a CPU (0: the fastest, timed while training; threads.py)
     cuda_graph: bool = True         # on a GPU, replay each full-batch training step as one CUDA graph
     jacobian_eps: float = 0.01      # action units (rad for joint targets), mujoco-jacobian's central differences
     # inverse: the Gauss-Newton labels (acn.models.labels.SolveConfig) and the loss
@@ -323,12 +325,20 @@ def train(model: Corrector, tr: Split, cfg: FitConfig, on_epoch=None, epochs: in
     (``acn.models.acn``). On a GPU each full-batch step is replayed as one CUDA graph
     (``GraphedStep``; ``cfg.cuda_graph``).
     """
-    with torch_threads(cfg.train_threads if tr.x.device.type == "cpu" else None):
-        cfg = cfg.resolved()
-        return _train(model, tr, cfg, on_epoch, cfg.epochs if epochs is None else epochs)
+    cfg = cfg.resolved()
+    epochs = cfg.epochs if epochs is None else epochs
+    if tr.x.device.type != "cpu":
+        return _train(model, tr, cfg, on_epoch, epochs, lambda step: step())
+    if cfg.train_threads:
+        with torch_threads(cfg.train_threads):
+            return _train(model, tr, cfg, on_epoch, epochs, lambda step: step())
+    with AdaptiveThreads() as threads:
+        return _train(model, tr, cfg, on_epoch, epochs, threads)
 
 
-def _train(model: Corrector, tr: Split, cfg: FitConfig, on_epoch, epochs: int) -> list[dict]:
+def _train(model: Corrector, tr: Split, cfg: FitConfig, on_epoch, epochs: int,
+           run: Callable[[Callable[[], None]], None]) -> list[dict]:
+    """``run(step)`` runs one training step (on the CPU, on the thread count ``train`` chose)."""
     net = model.net
     net.train()
     dev = tr.x.device
@@ -370,9 +380,11 @@ def _train(model: Corrector, tr: Split, cfg: FitConfig, on_epoch, epochs: int) -
                     index.copy_(idx)
                     full_batch()
                 else:
-                    step(idx)
+                    run(lambda: step(idx))
                 k += 1
             history.append({"epoch": epoch + 1, "train_loss": float(total) / n})
+            if dev.type == "cpu":  # the count in use as the epoch ended (chosen by timing unless fixed)
+                history[-1]["threads"] = torch.get_num_threads()
             if on_epoch:
                 on_epoch(history[-1])
     finally:
@@ -579,8 +591,13 @@ def fit(paths: list[str | Path], cfg: FitConfig, log=print, target=None) -> tupl
     timing["jacobian_seconds"] = time.perf_counter() - t
     val_before = objective(model, va, cfg)
     t = time.perf_counter()
-    history = train(model, tr, cfg, on_epoch=lambda h: log(f"epoch {h['epoch']}: train loss {h['train_loss']:.5f}")
-                    if h["epoch"] % max(1, cfg.epochs // 5) == 0 or h["epoch"] == cfg.epochs else None)
+
+    def log_epoch(h: dict) -> None:
+        if h["epoch"] % max(1, cfg.epochs // 5) == 0 or h["epoch"] == cfg.epochs:
+            log(f"epoch {h['epoch']}: train loss {h['train_loss']:.5f}"
+                + (f" ({h['threads']} torch threads)" if "threads" in h else ""))
+
+    history = train(model, tr, cfg, on_epoch=log_epoch)
     timing["train_seconds"] = time.perf_counter() - t
     model.to("cpu").freeze()
     round_reports = None

@@ -60,7 +60,8 @@ from torch import nn
 from acn.atomic import move_into_place, temporary_beside
 from acn.errors import UserError
 from acn.models.acn import INPUT_CHANNELS
-from acn.models.corrector import Corrector, load_for_target, torch_threads
+from acn.models.corrector import Corrector, load_for_target
+from acn.models.threads import torch_threads
 from acn.models.evaluate import HELD_OUT_SEED_OFFSET, distribution_stats, episode_stats
 from acn.models.fit import FitConfig
 from acn.models.policy_io import WalkingPolicy, policy_config
