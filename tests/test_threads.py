@@ -19,26 +19,59 @@ def test_candidates_are_one_then_powers_of_two_up_to_all():
     assert thread_candidates(8) == (1, 2, 4, 8)
 
 
+def sleeper(seconds: dict[int, float]):
+    """A step that takes ``seconds[count]`` on each torch thread count: a loop whose speed
+    depends on the count, as training's does."""
+    return lambda: time.sleep(seconds[torch.get_num_threads()])
+
+
 def test_the_faster_count_is_chosen_and_followed_when_the_load_changes():
-    """A step that is slow on one count and fast on the other, then the other way round: the
-    chooser runs on the fast one, and after the next probe on the new fast one."""
-    slow_on = {"count": 2}
-
-    def step():
-        time.sleep(0.004 if torch.get_num_threads() == slow_on["count"] else 0.0005)
-
+    seconds = {1: 0.0005, 2: 0.004}
     before = torch.get_num_threads()
-    with AdaptiveThreads(candidates=(1, 2), window=3, settle=1, every_s=0.15) as threads:
-        for _ in range(12):  # the first probe (8 steps), then on the chosen count
-            threads(step)
-        assert threads.chosen == 1 and torch.get_num_threads() == 1
-        assert threads.steps[2] == 4  # only the probe's steps ran on the slow count
-        slow_on["count"] = 1
+    with AdaptiveThreads(candidates=(1, 2), settle=1, window_s=0.01, every_s=0.1) as threads:
+        threads(sleeper(seconds))
+        while threads.chosen == 0:  # the first probe: every step belongs to it
+            threads(sleeper(seconds))
+        assert threads.chosen == 1 and threads.steps[2] == 4  # one settling, three timed steps on the slow count
+        threads(sleeper(seconds))
+        assert torch.get_num_threads() == 1
+        seconds.update({1: 0.004, 2: 0.0005})  # the load changes: now two threads are faster
         deadline = time.perf_counter() + 5.0
         while threads.chosen != 2 and time.perf_counter() < deadline:
-            threads(step)
+            threads(sleeper(seconds))
         assert threads.chosen == 2
     assert torch.get_num_threads() == before  # torch's setting is restored
+
+
+def test_a_slow_candidate_is_left_at_once_and_a_kept_choice_is_probed_less_often():
+    seconds = {1: 0.0005, 2: 0.006}
+    with AdaptiveThreads(candidates=(1, 2), settle=1, window_s=0.005, every_s=0.05, most_every_s=0.2) as threads:
+        while threads.chosen == 0:
+            threads(sleeper(seconds))
+        first = threads.steps[2]
+        intervals, last = [], threads._next_probe
+        deadline = time.perf_counter() + 1.5
+        while time.perf_counter() < deadline:
+            threads(sleeper(seconds))
+            if threads._next_probe != last:
+                intervals.append(threads._next_probe - last)
+                last = threads._next_probe
+        # every later probe left two threads after one step (12x slower than the chosen count)
+        assert threads.chosen == 1 and threads.steps[2] == first + len(intervals)
+        assert intervals[-1] > 1.5 * intervals[0] and max(intervals) < 0.2 + 0.05  # backed off, up to most_every_s
+
+
+def test_a_chosen_count_that_slows_down_is_probed_again_at_once():
+    seconds = {1: 0.0005, 2: 0.002}
+    with AdaptiveThreads(candidates=(1, 2), settle=1, window_s=0.005, every_s=60.0) as threads:
+        while threads.chosen == 0:
+            threads(sleeper(seconds))
+        assert threads.chosen == 1
+        seconds[1] = 0.006  # another process takes the core: the next probe is not 60 s away
+        deadline = time.perf_counter() + 2.0
+        while threads.chosen != 2 and time.perf_counter() < deadline:
+            threads(sleeper(seconds))
+        assert threads.chosen == 2
 
 
 @pytest.mark.parametrize("variant, hidden", [("paper", 64), ("inverse", 128)])

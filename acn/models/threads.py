@@ -53,22 +53,35 @@ def thread_candidates(most: int | None = None) -> tuple[int, ...]:
 class AdaptiveThreads:
     """Runs each step of a loop on the thread count that has been fastest lately.
 
-    Every ``every_s`` seconds (and at the first step) a probe runs ``settle + window`` steps on
-    each candidate count in turn and times the last ``window`` of them (the first steps after a
-    change of count are slow: the thread team and the kernels' caches settle); the count with the
-    least median step time is used until the next probe. Switching at every step instead made
-    each two-thread step 2-3x slower than in a run of them. ``steps`` counts the steps run on
-    each count (probes included). Use as a context manager: torch's setting is restored after.
+    A probe runs each candidate count in turn: ``settle`` untimed steps (the first steps after a
+    change of count are slow while the thread team and the kernels' caches settle; switching at
+    every step made each two-thread step 2-3x slower than in a run of them), then timed steps for
+    at least ``window_s`` seconds: longer than the scheduler's time slice, so that threads
+    descheduled by another process show in the mean (a median over a few steps once chose two
+    threads on a busy machine and trained at a third of one thread's rate). The count with the
+    least mean step time runs until the next probe. Probes come at the first step and then after
+    ``every_s`` seconds, an interval that doubles while the choice stays (up to ``most_every_s``);
+    a change of choice, or the chosen count's steps slowing to ``slow_down`` times their probed
+    time over a ``4 window_s`` stretch, brings the next probe at once. A candidate whose step
+    takes ``give_up`` times the chosen count's is left at once (two threads on a busy machine can
+    be a hundred times slower). ``steps`` counts the steps run on each count, probes included.
+    Use as a context manager: torch's setting is restored after.
     """
 
     candidates: tuple[int, ...] = field(default_factory=thread_candidates)
-    window: int = 6          # timed steps per candidate in a probe
-    settle: int = 2          # untimed steps after each change of count
-    every_s: float = 2.0     # seconds of training between probes
-    chosen: int = 0          # the current count (0 before the first probe)
+    settle: int = 2             # untimed steps after each change of count
+    window_s: float = 0.05      # timed seconds per candidate in a probe (at least 3 steps)
+    every_s: float = 2.0        # seconds of training between probes, at first and after a change
+    most_every_s: float = 32.0  # the longest interval while the choice stays
+    give_up: float = 3.0        # leave a candidate whose step takes this times the chosen one's
+    slow_down: float = 1.5      # probe again when the chosen count's steps get this much slower
+    chosen: int = 0             # the current count (0 before the first probe)
     steps: dict[int, int] = field(default_factory=dict)
-    _queue: list[tuple[int, bool]] = field(default_factory=list)
-    _times: dict[int, list[float]] = field(default_factory=dict)
+    _pending: list[int] = field(default_factory=list)  # the counts this probe has still to time
+    _mean: dict[int, float] = field(default_factory=dict)  # this probe's mean step time per count (s)
+    _ran: list = field(default_factory=lambda: [0, 0, 0.0])  # current stretch: steps, timed steps, seconds
+    _typical: float = 0.0       # the chosen count's mean step time at the last probe (s)
+    _interval: float = 0.0
     _next_probe: float = 0.0
     _before: int = 0
 
@@ -83,22 +96,38 @@ class AdaptiveThreads:
         """Run ``step()`` once, on the chosen count or as part of a probe."""
         if len(self.candidates) == 1:
             return self._run(self.candidates[0], step)
-        if not self._queue and time.perf_counter() >= self._next_probe:
-            # (count, timed?) per step, each candidate in one run; the chosen one last, so
-            # training goes on without another change when it stays the fastest
-            order = sorted(self.candidates, key=lambda c: c == self.chosen)
-            self._queue = [(c, k >= self.settle) for c in order for k in range(self.settle + self.window)]
-            self._times = {c: [] for c in self.candidates}
-        if not self._queue:
-            return self._run(self.chosen, step)
-        n, timed = self._queue.pop(0)
+        if not self._pending and time.perf_counter() >= self._next_probe:
+            # each candidate in one stretch, the chosen one last: training goes on without
+            # another change of count when it stays the fastest
+            self._pending = sorted(self.candidates, key=lambda c: c == self.chosen)
+            self._mean, self._ran = {}, [0, 0, 0.0]
+        n = self._pending[0] if self._pending else self.chosen
         t = time.perf_counter()
         self._run(n, step)
-        if timed:
-            self._times[n].append(time.perf_counter() - t)
-        if not self._queue:
-            self.chosen = min(self.candidates, key=lambda c: sorted(self._times[c])[len(self._times[c]) // 2])
-            self._next_probe = time.perf_counter() + self.every_s
+        took = time.perf_counter() - t
+        ran = self._ran
+        ran[0] += 1
+        if ran[0] > (self.settle if self._pending else 0):
+            ran[1], ran[2] = ran[1] + 1, ran[2] + took
+        if not self._pending:  # watch the chosen count
+            if ran[2] >= 4 * self.window_s:
+                if ran[2] / ran[1] > self.slow_down * self._typical:
+                    self._next_probe, self._interval = 0.0, self.every_s / 2  # the next probe now, then every_s
+                self._ran = [0, 0, 0.0]
+        elif self._typical and n != self.chosen and took > self.give_up * self._typical:
+            self._next_count(took)
+        elif ran[1] >= 3 and ran[2] >= self.window_s:
+            self._next_count(ran[2] / ran[1])
+
+    def _next_count(self, mean: float) -> None:
+        self._mean[self._pending.pop(0)] = mean
+        self._ran = [0, 0, 0.0]
+        if self._pending:
+            return
+        best = min(self._mean, key=self._mean.__getitem__)
+        self._interval = min(2 * self._interval, self.most_every_s) if best == self.chosen else self.every_s
+        self.chosen, self._typical = best, self._mean[best]
+        self._next_probe = time.perf_counter() + self._interval
 
     def _run(self, n: int, step: Callable[[], object]) -> None:
         if torch.get_num_threads() != n:
