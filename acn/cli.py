@@ -585,6 +585,10 @@ def import_main(argv: list[str] | None = None) -> int:
         if r.folded:
             print(f"a hybrid command ({', '.join(r.folded)}): stored as the position targets that drive the PD the "
                   "same way, q_des + (kd dq_des + tau_ff) / kp")
+        if {"action_kp", "action_kd"} & set(r.folded):
+            print("gains per row: the targets give the command's torque at each row's logged state, q + (tau + kd qd) "
+                  "/ kp with --kp, --kd (exact there; within the control period the model's PD stiffens with "
+                  "those gains)")
         hint = r.tolerance_hint(args.dt_tolerance)
         if hint:
             print(hint)

@@ -41,6 +41,11 @@ With ``--feedforward``, the controllers send a hybrid command (q_des, dq_des, ta
 runs kp (q_des - q) + kd (dq_des - qd) + tau_ff), logged as ``action.*``, ``action_vel.*`` and
 ``action_torque.*``, which acn-import folds into the position targets.
 
+With ``--stance-gains KP,KD``, the controllers send their gains with every command and switch
+each leg between the nominal gains (swing) and KP, KD times them (stance) on a gait clock
+(``robot_log.LogSpec.stance_gains``), logged as ``action_kp.*`` and ``action_kd.*``, which
+acn-import folds into the position targets at each row's state.
+
 With ``--pairs``, logs with TWO hidden effects instead (``--auto``), one line each and:
 
 - ``pairs_both_named``: both hidden effects added, and nothing else;
@@ -186,7 +191,7 @@ def log_spec(args, seed: int, over: dict) -> LogSpec:
                    drop=dropped(args), control_hz=args.control_hz, torque_control=args.torque_control,
                    stale=args.stale, glitches=args.glitches, jitter=args.jitter,
                    velocity_filter=args.velocity_filter, feedforward=args.feedforward,
-                   **{"controller": "sines", **over})
+                   stance_gains=args.stance_gains, **{"controller": "sines", **over})
 
 
 def import_config(args) -> ImportConfig:
@@ -257,11 +262,16 @@ def main() -> None:
                     help="s, time constant of a low-pass filter on the logged joint velocities")
     ap.add_argument("--feedforward", action="store_true",
                     help="hybrid commands: a velocity target and a feedforward torque beside the position target")
+    ap.add_argument("--stance-gains", type=lambda v: tuple(float(x) for x in v.split(",")), default=None,
+                    metavar="KP,KD", help="gains per row: legs in stance run KP, KD times the nominal gains")
     ap.add_argument("--glitches", type=float, default=0.0,
                     help="share of rows with one reading off by robot_log.GLITCH x its noise (a corrupted packet)")
     args = ap.parse_args()
-    if args.feedforward and args.torque_control:
-        ap.error("--feedforward completes a position target; --torque-control logs torques: choose one")
+    if (args.feedforward or args.stance_gains) and args.torque_control:
+        ap.error("--feedforward and --stance-gains complete a position target; --torque-control logs torques: "
+                 "choose one")
+    if args.stance_gains is not None and len(args.stance_gains) != 2:
+        ap.error("--stance-gains takes two multiples, KP,KD")
     root = Path(tempfile.mkdtemp())
     cases, seed = (PAIRS, 300) if args.pairs else (OTHER, 700) if args.other else (CASES, 100)
     unknown = [n for n in (args.cases.split(",") if args.cases else []) if n not in cases]

@@ -59,6 +59,10 @@ class LogSpec:
     feedforward: bool = False            # the controller sends (q_des, dq_des, tau_ff) and the motor runs
                                          # kp (q_des - q) + kd (dq_des - qd) + tau_ff (an MIT-style hybrid
                                          # command); logged as action.*, action_vel.*, action_torque.*
+    stance_gains: tuple[float, float] | None = None  # (kp, kd) multiples the controller sends a leg in the
+    # stance half of a gait clock (diagonal pairs in antiphase), the nominal gains in the swing half, as
+    # controllers that switch gains by gait phase do; logged as action_kp.*, action_kd.* (gains per row)
+    gait_period: float = 0.5             # s, that clock's period
     torque_control: bool = False         # the controller runs the PD itself, on the MEASURED (noisy) joint
     # angles and speeds, once per control step, and sends torques: the log's actions are N m
     # (acn-import --action-mode torque); the motor applies them held, through latency and strength
@@ -148,7 +152,7 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
     """Rows of every episode, as our channel names -> values (plus episode_index, timestamp, actions)."""
     if s.torque_control and s.feedforward:
         raise ValueError("torque_control and feedforward are two kinds of command: choose one")
-    if s.torque_control and (s.gains != (1.0, 1.0) or s.deadband):
+    if s.torque_control and (s.gains != (1.0, 1.0) or s.deadband or s.stance_gains):
         raise ValueError("torque_control: the PD gains and dead band are the controller's, logged in its torques")
     m = _spec(s).compile()
     d = mujoco.MjData(m)
@@ -160,7 +164,8 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
     foot_of_body = np.full(m.nbody, -1)  # body id -> foot index (-1: not a foot)
     foot_of_body[feet] = np.arange(len(feet))
     offset = np.zeros(12) if s.encoder_offset is None else np.asarray(s.encoder_offset, float)
-    kp, kd = np.asarray(s.kp, float), np.asarray(s.kd, float)
+    kp, kd = np.broadcast_to(np.asarray(s.kp, float), 12), np.broadcast_to(np.asarray(s.kd, float), 12)
+    leg_phase = np.repeat([0.0, 0.5, 0.5, 0.0], 3)  # FR, FL, RR, RL: the diagonal pairs in antiphase
     sub = s.physics_hz // s.control_hz
     rng = np.random.default_rng(s.seed)
     noise = _noise(s)                    # (rows, 43): drawn up front, so the controller sees what is logged
@@ -172,6 +177,8 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
                                              *(f"action.{j}" for j in JOINT_NAMES))}
     if s.feedforward:
         rows.update({f"action_{kind}.{j}": [] for kind in ("vel", "torque") for j in JOINT_NAMES})
+    if s.stance_gains:
+        rows.update({f"action_{kind}.{j}": [] for kind in ("kp", "kd") for j in JOINT_NAMES})
     for ep in range(s.episodes):
         target = _targets(s, rng)
         mujoco.mj_resetData(m, d)
@@ -179,8 +186,8 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
         d.qpos[3:7] = [1, 0, 0, 0]
         d.qpos[qadr] = STANCE + rng.uniform(-0.03, 0.03, 12) - offset
         mujoco.mj_forward(m, d)
-        # (q_des, dq_des, tau_ff): a command waits this many physics steps
-        queue = [np.stack([STANCE, np.zeros(12), np.zeros(12)])] * s.latency_steps
+        # (q_des, dq_des, tau_ff, kp, kd): a command waits this many physics steps
+        queue = [np.stack([STANCE, np.zeros(12), np.zeros(12), kp, kd])] * s.latency_steps
         ff_phase = rng.uniform(0, 2 * np.pi, 12) if s.feedforward else None
         v_prev = d.qvel[0:3].copy()
         touching = np.ones(4)
@@ -201,6 +208,10 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
             if s.feedforward:  # the targets' own rate, and a slow torque about a per-type bias (N m)
                 dq_des = (target(k / s.control_hz + 1e-3) - target(k / s.control_hz - 1e-3)) / 2e-3
                 tau_ff = np.tile([0.5, 1.5, -2.5], 4) + 2.0 * np.sin(np.pi * k / s.control_hz + ff_phase)
+            kp_t, kd_t = kp, kd
+            if s.stance_gains:
+                stance = (k / s.control_hz / s.gait_period + leg_phase) % 1.0 < 0.5
+                kp_t, kd_t = np.where(stance, s.stance_gains[0] * kp, kp), np.where(stance, s.stance_gains[1] * kd, kd)
             if s.feedback:
                 a = a + _level(state, s.feedback)
             if s.torque_control:  # the PD on the readings, in the controller: the action is its torque
@@ -214,6 +225,10 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
                 for j, v, f in zip(JOINT_NAMES, dq_des, tau_ff):
                     rows[f"action_vel.{j}"].append(v)
                     rows[f"action_torque.{j}"].append(f)
+            if s.stance_gains:
+                for j, p_, d_ in zip(JOINT_NAMES, kp_t, kd_t):
+                    rows[f"action_kp.{j}"].append(p_)
+                    rows[f"action_kd.{j}"].append(d_)
             rows["episode_index"].append(ep)
             rows["timestamp"].append(clock / s.physics_hz if s.jitter_logged else k / s.control_hz)
             v_prev = d.qvel[0:3].copy()
@@ -221,8 +236,8 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
             clock += periods[row]
             last = periods[row] / s.physics_hz
             for _ in range(periods[row]):
-                queue.append(np.stack([a, dq_des, tau_ff]))
-                cmd, cmd_vel, cmd_ff = queue.pop(0)
+                queue.append(np.stack([a, dq_des, tau_ff, kp_t, kd_t]))
+                cmd, cmd_vel, cmd_ff, cmd_kp, cmd_kd = queue.pop(0)
                 q, qd = d.qpos[qadr] + offset, d.qvel[dadr]
                 if s.torque_control:
                     tau = np.clip(cmd, -s.torque_limit, s.torque_limit)
@@ -230,7 +245,7 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
                     err = cmd - q
                     if s.deadband:
                         err = np.sign(err) * np.maximum(np.abs(err) - s.deadband / 2, 0.0)
-                    tau = np.clip(s.gains[0] * kp * err + s.gains[1] * kd * (cmd_vel - qd) + cmd_ff,
+                    tau = np.clip(s.gains[0] * cmd_kp * err + s.gains[1] * cmd_kd * (cmd_vel - qd) + cmd_ff,
                                   -s.torque_limit, s.torque_limit)
                 d.ctrl[:] = s.strength * tau
                 mujoco.mj_step(m, d)

@@ -15,7 +15,8 @@ converted. A map file renames and scales other columns onto these names:
 value > threshold, for a log of foot forces). Channels the log lacks are stored as NaN and listed in the
 metadata (``missing_channels``); joint positions and actions are the minimum. A hybrid
 (MIT-style) command, ``action_vel.<joint>`` (rad/s) and ``action_torque.<joint>`` (N m) beside the
-position target, is folded into the target that drives the PD law the same way (``_fold_hybrid``).
+position target, is folded into the target that drives the PD law the same way (``_fold_hybrid``),
+and so are gains sent with each command (``action_kp.<joint>``, ``action_kd.<joint>``).
 
 Transitions: s_{t+1} is the next row of the same episode. A row with a non-finite value, or a
 time step that differs from the control period by more than ``dt_tolerance`` of it, ends a
@@ -54,10 +55,16 @@ EFFORT_COLUMNS = tuple(f"effort.{j}" for j in ACTION_NAMES)
 # feedforward torque, N m; the motor runs kp (q_des - q) + kd (dq_des - qd) + tau_ff.
 TARGET_VEL_COLUMNS = tuple(f"action_vel.{j}" for j in ACTION_NAMES)
 FEEDFORWARD_COLUMNS = tuple(f"action_torque.{j}" for j in ACTION_NAMES)
+# Gains sent with each command (N m/rad, N m s/rad), as controllers that switch their legs between
+# stance and swing gains do; the motor runs kp_t (q_des - q) + kd_t (dq_des - qd) + tau_ff.
+KP_COLUMNS = tuple(f"action_kp.{j}" for j in ACTION_NAMES)
+KD_COLUMNS = tuple(f"action_kd.{j}" for j in ACTION_NAMES)
+HYBRID_COLUMNS = {"action_vel": TARGET_VEL_COLUMNS, "action_torque": FEEDFORWARD_COLUMNS, "action_kp": KP_COLUMNS,
+                  "action_kd": KD_COLUMNS}
 QUAT_COLUMNS = ("base_quat_w", "base_quat_x", "base_quat_y", "base_quat_z")  # the trunk's orientation, world
 INDEX_COLUMNS = ("episode_index", "timestamp")
-KNOWN_COLUMNS = (*INDEX_COLUMNS, *STATE_NAMES, *QUAT_COLUMNS, *ACTION_COLUMNS, *EFFORT_COLUMNS, *TARGET_VEL_COLUMNS,
-                 *FEEDFORWARD_COLUMNS)
+KNOWN_COLUMNS = (*INDEX_COLUMNS, *STATE_NAMES, *QUAT_COLUMNS, *ACTION_COLUMNS, *EFFORT_COLUMNS,
+                 *(c for columns in HYBRID_COLUMNS.values() for c in columns))
 FRAMES = ("body", "world")
 MAP_ENTRY_KEYS = ("column", "scale", "offset", "threshold")
 JITTER_MAX = 0.25  # a time-step spread up to this share of the period is taken as jitter (ImportReport.tolerance_hint)
@@ -217,7 +224,7 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
         raise UserError(f"{log} has fewer than 2 rows")
     missing = [c for c in STATE_NAMES if c not in cols]
     state = _to_body_frame(np.column_stack([cols.get(c, np.full(n, np.nan)) for c in STATE_NAMES]), cfg)
-    action, folded = _fold_hybrid(np.column_stack([cols[c] for c in ACTION_COLUMNS]), cols, cfg)
+    action, folded = _fold_hybrid(np.column_stack([cols[c] for c in ACTION_COLUMNS]), cols, cfg, state)
     has_effort = all(c in cols for c in EFFORT_COLUMNS)
     effort = np.column_stack([cols[c] for c in EFFORT_COLUMNS]) if has_effort else np.full((n, 12), np.nan)
     episode = cols.get("episode_index", np.zeros(n))
@@ -317,30 +324,49 @@ def _to_body_frame(state: np.ndarray, cfg: ImportConfig) -> np.ndarray:
     return out
 
 
-def _fold_hybrid(action: np.ndarray, cols: dict[str, np.ndarray], cfg: ImportConfig) -> tuple[np.ndarray, list[str]]:
-    """Position targets (N, 12) that drive the PD law exactly as a hybrid command does:
-    q_des + (kd dq_des + tau_ff) / kp, since kp (q_des - q) + kd (dq_des - qd) + tau_ff equals
-    kp (that - q) - kd qd before the torque limit. Returns them and which of the kinds
-    (``action_vel``, ``action_torque``) the log had; each kind is all 12 joints or none."""
-    folded = []
-    kp, kd = per_joint(cfg.kp), per_joint(cfg.kd)
-    for kind, columns, gain in (("action_vel", TARGET_VEL_COLUMNS, kd), ("action_torque", FEEDFORWARD_COLUMNS, None)):
+def _fold_hybrid(action: np.ndarray, cols: dict[str, np.ndarray], cfg: ImportConfig,
+                 state: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """Position targets (N, 12) for the model's PD law (the imported kp, kd) from a hybrid command.
+
+    With the model's gains: q_des + (kd dq_des + tau_ff) / kp, since kp (q_des - q) + kd (dq_des -
+    qd) + tau_ff equals kp (that - q) - kd qd before the torque limit, at every state. With gains
+    per row (kp_t, kd_t): the target at which the model's PD gives the command's torque at the
+    row's logged state (q_t, qd_t), q_t + (tau_t + kd qd_t) / kp with tau_t = kp_t (q_des - q_t) +
+    kd_t (dq_des - qd_t) + tau_ff, which is the fold above plus ((kp_t - kp) (q_des - q_t) +
+    (kd_t - kd) (dq_des - qd_t)) / kp: exact at the row's state, first order over the control
+    period (within it the model's PD stiffens with kp, kd where the robot's did with kp_t, kd_t).
+    Returns the targets and which kinds (``HYBRID_COLUMNS``) the log had; each kind is all 12
+    joints or none."""
+    extra = {}
+    for kind, columns in HYBRID_COLUMNS.items():
         have = [c for c in columns if c in cols]
         if not have:
             continue
         if len(have) < len(columns):
             raise UserError(f"a hybrid command's {kind} needs all 12 joints; the log has {len(have)}: "
                             f"missing {', '.join(c for c in columns if c not in cols)}")
-        if cfg.action_mode != "position":
-            raise UserError(f"{kind}.* columns complete a position target (q_des); with --action-mode "
-                            f"{cfg.action_mode} the actions are already torques: leave them out")
-        if not (kp > 0).all():
-            raise UserError(f"{kind}.* columns are folded into the position targets through kp: every joint's "
-                            "--kp must be positive")
-        extra = np.column_stack([cols[c] for c in columns])
-        action = action + (extra if gain is None else gain * extra) / kp
-        folded.append(kind)
-    return action, folded
+        extra[kind] = np.column_stack([cols[c] for c in columns])
+    if not extra:
+        return action, []
+    kinds = ", ".join(f"{k}.*" for k in extra)
+    if cfg.action_mode != "position":
+        raise UserError(f"{kinds} columns complete a position target (q_des); with --action-mode "
+                        f"{cfg.action_mode} the actions are already torques: leave them out")
+    kp, kd = per_joint(cfg.kp), per_joint(cfg.kd)
+    if not (kp > 0).all():
+        raise UserError(f"{kinds} columns are folded into the position targets through kp: every joint's "
+                        "--kp must be positive (the gains the controller uses most)")
+    dq_des = extra.get("action_vel", 0.0)
+    out = action + (kd * dq_des + extra.get("action_torque", 0.0)) / kp
+    if "action_kp" in extra:
+        out = out + (extra["action_kp"] - kp) * (action - state[:, SLICES["joint_pos"]]) / kp
+    if "action_kd" in extra:
+        qd = state[:, SLICES["joint_vel"]]
+        if not np.isfinite(qd).any():
+            raise UserError("action_kd.* columns are folded at each row's joint velocities: the log needs "
+                            f"{GROUPS['joint_vel'][0]}, ... (or map them with --map)")
+        out = out + (extra["action_kd"] - kd) * (dq_des - qd) / kp
+    return out, list(extra)
 
 
 def _reorder_legs(cols: dict[str, np.ndarray], order: tuple[str, ...]) -> dict[str, np.ndarray]:
@@ -352,7 +378,7 @@ def _reorder_legs(cols: dict[str, np.ndarray], order: tuple[str, ...]) -> dict[s
     for mine, theirs in zip(FOOT_NAMES, order):
         rename[f"{mine}_contact"] = f"{theirs}_contact"
         for joint in ("hip", "thigh", "calf"):
-            for pattern in ("{}_pos", "{}_vel", "action.{}", "effort.{}", "action_vel.{}", "action_torque.{}"):
+            for pattern in ("{}_pos", "{}_vel", "action.{}", "effort.{}", *(f"{kind}.{{}}" for kind in HYBRID_COLUMNS)):
                 rename[pattern.format(f"{mine}_{joint}")] = pattern.format(f"{theirs}_{joint}")
     return {rename.get(name, name): values for name, values in cols.items()}
 
