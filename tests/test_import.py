@@ -205,3 +205,46 @@ def test_foot_forces_become_contact_flags_through_a_threshold(log_rows):
     ok = np.isfinite(got)
     np.testing.assert_array_equal(got[ok], flags[ok])
     assert 0 < flags.mean() < 1  # both stance and swing are in the log
+
+
+def _write_variant(path, rows: dict, how: str) -> None:
+    """``rows`` as other logging code writes them."""
+    if how == "semicolons":
+        pacsv.write_csv(pa.table(rows), str(path), pacsv.WriteOptions(delimiter=";"))
+    elif how == "empty mocap columns":  # a logger without motion capture writes NaN columns for it
+        pq.write_table(pa.table({k: (np.full_like(v, np.nan) if k in GROUPS["base_pos"] + GROUPS["base_linvel"] else v)
+                                 for k, v in rows.items()}), str(path))
+    elif how == "date-time stamps":
+        stamps = (1.7e9 + rows["timestamp"] + 10 * rows["episode_index"]) * 1e6
+        pq.write_table(pa.table({**rows, "timestamp": pa.array(stamps.astype(np.int64), pa.timestamp("us"))}), str(path))
+
+
+@pytest.mark.parametrize("how, suffix", [("semicolons", "csv"), ("empty mocap columns", "parquet"),
+                                         ("date-time stamps", "parquet")])
+def test_logs_as_other_code_writes_them_import(tmp_path, log_rows, acn, how, suffix):
+    _write_variant(tmp_path / f"log.{suffix}", log_rows, how)
+    r = acn("import", str(tmp_path / f"log.{suffix}"), "--out", str(tmp_path / "ds"), *CONTROL)
+    assert r.returncode == 0 and "98 transitions in 2 episode(s)" in r.stdout, r.stdout + r.stderr
+    m = load_measurements(tmp_path / "ds")
+    assert m.missing == (list(GROUPS["base_pos"] + GROUPS["base_linvel"]) if how == "empty mocap columns" else [])
+
+
+def test_a_log_other_code_got_wrong_gets_one_line_naming_the_cause(tmp_path, log_rows, acn):
+    order = np.argsort(log_rows["timestamp"], kind="stable")  # two robots' rows side by side, sorted by time
+    interleaved = {k: v[order] for k, v in log_rows.items()}
+    f32 = {**log_rows, "timestamp": (1.7e9 + log_rows["timestamp"]).astype(np.float32)}
+    cases = [
+        (pa.table(interleaved), "sort the log by episode_index, then timestamp"),
+        (pa.table({k: v[:0] for k, v in log_rows.items()}), "no data rows"),
+        (pa.table(f32), "the timestamps are float32 numbers"),
+    ]
+    for k, (table, message) in enumerate(cases):
+        pq.write_table(table, str(tmp_path / f"{k}.parquet"))
+        r = acn("import", str(tmp_path / f"{k}.parquet"), "--out", str(tmp_path / f"ds{k}"), *CONTROL)
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and message in r.stderr, r.stderr
+        assert not (tmp_path / f"ds{k}").exists()
+    pq.write_table(pa.table(log_rows), str(tmp_path / "log.parquet"))
+    (tmp_path / "map.json").write_text(json.dumps({"FR_hip_pos": {"column": ["q", 0]}}))
+    r = acn("import", str(tmp_path / "log.parquet"), "--out", str(tmp_path / "m"), *CONTROL, "--map",
+            str(tmp_path / "map.json"))
+    assert r.returncode == 2 and 'the "column" of \'FR_hip_pos\' must be a column name' in r.stderr, r.stderr

@@ -34,6 +34,7 @@ frames, conventions); the findings are returned, and recorded in the metadata
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -112,7 +113,9 @@ class ImportReport:
 
 
 def read_table(path: Path) -> dict[str, np.ndarray]:
-    """Columns of a CSV or Parquet file as float arrays (non-numeric columns are skipped)."""
+    """Columns of a CSV or Parquet file as float arrays (non-numeric columns are skipped; date-time
+    columns become seconds since the epoch). A CSV's separator is read from its header: comma,
+    semicolon or tab; column names are stripped of surrounding spaces."""
     import pyarrow as pa
 
     if not path.is_file():
@@ -122,7 +125,7 @@ def read_table(path: Path) -> dict[str, np.ndarray]:
         if suffix == ".csv":
             import pyarrow.csv as pacsv
 
-            table = pacsv.read_csv(path)
+            table = pacsv.read_csv(path, parse_options=pacsv.ParseOptions(delimiter=_separator(path)))
         elif suffix in (".parquet", ".pq"):
             import pyarrow.parquet as pq
 
@@ -131,11 +134,25 @@ def read_table(path: Path) -> dict[str, np.ndarray]:
             raise UserError(f"{path}: a log must be a .csv or .parquet file")
     except (pa.ArrowInvalid, OSError) as e:
         raise UserError(f"cannot read {path}: {str(e).splitlines()[0]}") from None
+    if table.num_rows == 0:
+        raise UserError(f"{path} has no data rows (only a header: {', '.join(table.column_names[:4])}"
+                        f"{', ...' if table.num_columns > 4 else ''})")
     out = {}
     for name, col in zip(table.column_names, table.columns):
-        if pa.types.is_integer(col.type) or pa.types.is_floating(col.type) or pa.types.is_boolean(col.type):
+        name = name.strip()
+        if pa.types.is_timestamp(col.type):  # a date-time: seconds since the epoch
+            unit = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}[col.type.unit]
+            out[name] = col.cast(pa.int64()).to_numpy(zero_copy_only=False).astype(np.float64) * unit
+        elif pa.types.is_integer(col.type) or pa.types.is_floating(col.type) or pa.types.is_boolean(col.type):
             out[name] = col.to_numpy(zero_copy_only=False).astype(np.float64)
     return out
+
+
+def _separator(path: Path) -> str:
+    """The CSV's separator: whichever of comma, semicolon and tab its header line has most of."""
+    with open(path, "rb") as f:
+        header = f.readline().decode("utf-8", errors="replace")
+    return max((",", ";", "\t"), key=header.count)
 
 
 def read_map(path: Path | None) -> dict:
@@ -160,6 +177,8 @@ def resolve_columns(table: dict[str, np.ndarray], mapping: dict) -> dict[str, np
             raise UserError(f"map: {name!r} must be a column name or {{\"column\": ..., \"scale\": ..., \"offset\": ...}}"
                             + (" (a contact channel may also take \"threshold\")" if name in GROUPS["contact"] else ""))
         column = entry["column"]
+        if not isinstance(column, str):
+            raise UserError(f"map: the \"column\" of {name!r} must be a column name, got {json.dumps(column)}")
         if column not in table:
             raise UserError(f"map: the log has no numeric column {column!r} (for {name})")
         scale, offset = entry.get("scale", 1.0), entry.get("offset", 0.0)
@@ -210,8 +229,10 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
             raise UserError(f"{name} must be one of {', '.join(FRAMES)}, got {frame!r}")
     if sorted(cfg.leg_order) != sorted(FOOT_NAMES):
         raise UserError(f"--leg-order must name each of {', '.join(FOOT_NAMES)} once, got {', '.join(cfg.leg_order)}")
-    cols = _orientation(resolve_columns(read_table(log), read_map(Path(map_path) if map_path else None)))
-    cols = _reorder_legs(cols, tuple(cfg.leg_order))
+    cols = resolve_columns(read_table(log), read_map(Path(map_path) if map_path else None))
+    # a channel the logger wrote as an empty (all-NaN) column is a channel it did not log
+    cols = {k: v for k, v in cols.items() if k in INDEX_COLUMNS or np.isfinite(v).any()}
+    cols = _reorder_legs(_orientation(cols), tuple(cfg.leg_order))
     n = len(next(iter(cols.values()))) if cols else 0
     if "timestamp" not in cols:
         raise UserError(f"{log} has no timestamp column (s); map one with --map")
@@ -236,8 +257,9 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
         good &= np.isfinite(effort).all(1)
 
     period = 1.0 / cfg.control_hz
+    _check_contiguous(episode)
     steps = _time_steps(episode, timestamp)
-    _check_time_step(steps, period, cfg.dt_tolerance)
+    _check_time_step(steps, period, cfg.dt_tolerance, timestamp)
     spread = float(np.percentile(np.abs(steps / period - 1.0), 99)) if len(steps) else 0.0
     meta = {
         "format_version": schema.FORMAT_VERSION, "paired": False,
@@ -388,13 +410,31 @@ def _time_steps(episode: np.ndarray, timestamp: np.ndarray) -> np.ndarray:
     return np.diff(timestamp)[(np.diff(episode) == 0) & np.isfinite(np.diff(timestamp))]
 
 
-def _check_time_step(steps: np.ndarray, period: float, tol: float) -> None:
+def _check_contiguous(episode: np.ndarray) -> None:
+    """Refuse a log whose episodes' rows are interleaved (several robots or environments logged
+    side by side, sorted by time): each episode must be one block of rows."""
+    ep = episode[np.isfinite(episode)]
+    blocks = int(np.count_nonzero(np.diff(ep))) + 1 if len(ep) else 0
+    if blocks > len(np.unique(ep)):
+        raise UserError(f"the rows of an episode are not together: episode_index returns to an earlier value "
+                        f"({blocks} runs of rows for {len(np.unique(ep))} episodes); sort the log by "
+                        "episode_index, then timestamp")
+
+
+def _check_time_step(steps: np.ndarray, period: float, tol: float, timestamp: np.ndarray | None = None) -> None:
     """Refuse a log whose median time step is not the control period (one line: the likely cause)."""
     if not len(steps):
         return
     med = float(np.median(steps))
     if abs(med - period) <= tol * period:
         return
+    if timestamp is not None:  # float32 timestamps far from zero step in coarse increments
+        t = timestamp[np.isfinite(timestamp)]
+        top = float(np.abs(t).max()) if len(t) else 0.0
+        if len(t) and np.array_equal(t, t.astype(np.float32)) and np.spacing(np.float32(top)) > 0.05 * period:
+            raise UserError(f"the timestamps are float32 numbers: near {top:.6g} s they can only step by "
+                            f"{float(np.spacing(np.float32(top))):.3g} s, too coarse for {1 / period:g} Hz; write "
+                            "them as float64, or as seconds since the log's start")
     ratio = med / period
     unit = next((u for u, f in (("ms", 1e3), ("us", 1e6), ("ns", 1e9)) if abs(ratio / f - 1) <= tol), None)
     hint = (f"timestamps in {unit}? map timestamp with \"scale\": {1 / {'ms': 1e3, 'us': 1e6, 'ns': 1e9}[unit]:g}"
