@@ -123,6 +123,7 @@ CORRUPTIONS = {
                                            "channel lag the motion", "derives them from the positions"),
     "a gyroscope one row late": (_late(GROUPS["base_angvel"]), "every base_angvel channel lag the motion",
                                  "read at another time"),
+    "trunk angles in degrees": (_scale(GROUPS["base_rpy"], 180 / np.pi), "base_pitch reaches", "degrees?"),
 }
 
 
@@ -170,6 +171,12 @@ def test_import_converts_a_quaternion_and_world_velocities_and_records_findings(
     assert r.returncode == 0 and "check (velocities): base_linvel" in r.stdout and "--linvel-frame world" in r.stdout
     info = json.loads((tmp_path / "as_is" / "meta" / "info.json").read_text())["acn"]["import"]
     assert info["checks"] and info["checks"][0]["channels"] == list(GROUPS["base_linvel"])
+    assert "orders its quaternion x, y, z, w" in r.stdout  # a finding on a quaternion log: the order is suspect too
+    # A quaternion in x, y, z, w order under the w, x, y, z names: the checks see it, and the order is named.
+    c.update(base_quat_w=x, base_quat_x=y, base_quat_y=z, base_quat_z=w)
+    pacsv.write_csv(pa.table(c), tmp_path / "xyzw.csv")
+    r = acn("import", str(tmp_path / "xyzw.csv"), "--out", str(tmp_path / "xyzw"), "--linvel-frame", "world", *CONTROL)
+    assert r.returncode == 0 and "check (" in r.stdout and "map base_quat_w to its last component" in r.stdout, r.stdout
 
 
 def test_timestamps_in_ms_and_bad_quaternions_are_refused_in_one_line(tmp_path, rows, acn):

@@ -404,6 +404,16 @@ def pose(episodes: list[Episode]) -> list[Finding]:
         out.append(Finding("pose", GROUPS["base_rpy"], f"the trunk is tilted by more than 0.8 rad where most episodes "
                            f"start (median |roll| {r:.2f}, |pitch| {p:.2f} rad): the schema's orientation is extrinsic "
                            "XYZ Euler angles in rad (from a quaternion: which column is w?)"))
+    # The schema's pitch (the middle of extrinsic XYZ Euler angles) lies within +-pi/2: beyond it in
+    # more than a few rows, the angles are in degrees (a level robot's few degrees read as rad) or
+    # in another convention.
+    pitch = states[:, STATE_NAMES.index("base_pitch")]
+    pitch = pitch[np.isfinite(pitch)]
+    if len(pitch) >= MIN_ROWS and (beyond := float((np.abs(pitch) > np.pi / 2 + 0.05).mean())) > 0.01:
+        hint = 'degrees? map base_roll, base_pitch and base_yaw with "scale": 0.0174533' \
+            if (np.abs(pitch / DEG) <= np.pi / 2).all() else "another Euler convention?"
+        out.append(Finding("pose", GROUPS["base_rpy"], f"base_pitch reaches {np.abs(pitch).max():.3g}, beyond the "
+                           f"+-pi/2 rad of the schema's extrinsic XYZ Euler angles, in {beyond:.0%} of rows: {hint}"))
     # Height where episodes start, too: a robot that falls onto its back lies with the trunk 6 cm
     # high for most of a log, in the right units and frame.
     iz = STATE_NAMES.index("base_pos_z")

@@ -99,6 +99,17 @@ class ImportReport:
     findings: list[checks.Finding]
     step_spread: float = 0.0  # 99th percentile of |time step / control period - 1| within episodes
     folded: list[str] = field(default_factory=list)  # hybrid command columns folded into the position targets
+    quaternion: bool = False  # the trunk's orientation came from base_quat_* (converted to Euler angles)
+
+    def quaternion_hint(self) -> str | None:
+        """A line where the orientation came from a quaternion and a check finds the trunk's
+        motion or pose inconsistent: a quaternion in x, y, z, w order read as w, x, y, z turns a
+        level trunk at heading 0 into one at heading pi, still level, so only the velocities and
+        the feet show it."""
+        if not self.quaternion or not any(f.check in ("velocities", "stance_feet", "pose") for f in self.findings):
+            return None
+        return ("the orientation came from base_quat_w, _x, _y, _z: if the log orders its quaternion x, y, z, w "
+                "(scipy, ROS, Eigen's coeffs), map base_quat_w to its last component and x, y, z to the first three")
 
     def tolerance_hint(self, tolerance: float) -> str | None:
         """A line suggesting a wider ``--dt-tolerance`` where the splits come from a control loop
@@ -230,6 +241,7 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
     if sorted(cfg.leg_order) != sorted(FOOT_NAMES):
         raise UserError(f"--leg-order must name each of {', '.join(FOOT_NAMES)} once, got {', '.join(cfg.leg_order)}")
     cols = resolve_columns(read_table(log), read_map(Path(map_path) if map_path else None))
+    quaternion = any(c in cols for c in QUAT_COLUMNS)
     # a channel the logger wrote as an empty (all-NaN) column is a channel it did not log
     cols = {k: v for k, v in cols.items() if k in INDEX_COLUMNS or np.isfinite(v).any()}
     cols = _reorder_legs(_orientation(cols), tuple(cfg.leg_order))
@@ -292,7 +304,7 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
                               cut_nonfinite=int((~good).sum()), time_breaks=reasons.get("split_time_gap", 0),
                               dropped_short=dropped, missing=missing,
                               findings=checks.check(written, period, cfg.action_mode), step_spread=spread,
-                              folded=folded)
+                              folded=folded, quaternion=quaternion)
         writer.meta.info[schema.ACN_KEY]["import"] = {"file": log.name, "rows": n, "transitions": transitions,
                           "rows_cut_nonfinite": report.cut_nonfinite, "time_step_breaks": report.time_breaks,
                           "time_step_spread": round(spread, 4), "folded_into_position_targets": folded,
