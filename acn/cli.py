@@ -551,6 +551,9 @@ def import_parser() -> argparse.ArgumentParser:
     p.add_argument("--leg-order", type=_leg_order, default=FOOT_NAMES, metavar="FL,FR,RL,RR",
                    help="the order of the legs in the log's columns, if not the schema's FR,FL,RR,RL "
                    "(legged_gym and Isaac Gym: FL,FR,RL,RR)")
+    p.add_argument("--shift-actions", type=int, default=0, metavar="ROWS",
+                   help="pair each state with the command this many rows later in its episode (1: the log writes the "
+                   "last action sent with the new observation, as the action_row check finds)")
     p.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
     return p
 
@@ -577,7 +580,8 @@ def import_main(argv: list[str] | None = None) -> int:
             raise UserError(f"output directory {args.out} exists (use --overwrite to replace it)")
         cfg = ImportConfig(control_hz=args.control_hz, kp=args.kp, kd=args.kd, torque_limit=args.torque_limit,
                            action_mode=args.action_mode, physics_hz=args.physics_hz, dt_tolerance=args.dt_tolerance,
-                           linvel_frame=args.linvel_frame, angvel_frame=args.angvel_frame, leg_order=args.leg_order)
+                           linvel_frame=args.linvel_frame, angvel_frame=args.angvel_frame, leg_order=args.leg_order,
+                           shift_actions=args.shift_actions)
         path, r = import_log(args.log, args.out, cfg, args.map_file, overwrite=args.overwrite)
         print(f"read {r.rows} rows: {r.transitions} transitions in {r.episodes} episode(s); cut {r.cut_nonfinite} "
               f"row(s) with non-finite values, split at {r.time_breaks} wrong time step(s), dropped "

@@ -802,3 +802,44 @@ def test_an_effect_that_acts_on_few_steps_is_significant_by_its_longest_horizon_
     horizon = Horizon({})
     uneven(horizon, out)
     assert horizon.asked == [] and not out[0].judgement.significant
+
+
+def _one_row_late(rows: dict) -> dict:
+    """``rows`` as a logger that writes the last action sent with the new observation logs them."""
+    out = dict(rows)
+    for name in (c for c in rows if c.startswith("action")):
+        v = np.full(len(rows[name]), np.nan)
+        for ep in np.unique(rows["episode_index"]):
+            idx = np.flatnonzero(rows["episode_index"] == ep)
+            v[idx[1:]] = rows[name][idx[:-1]]
+        out[name] = v
+    return out
+
+
+def test_actions_logged_one_row_late_are_named_and_shifted_back_on_import(tmp_path, acn):
+    """The model predicts each step far better with the next row's action: the diagnosis names the
+    pairing (no physical effect undoes it) and says to fix the data; imported with --shift-actions 1,
+    and in the consistent log, there is nothing to name."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+    from robot_log import simulate
+
+    from acn.models.diagnose.pairing import action_row
+
+    rows = simulate(LogSpec(seconds=4.0, episodes=2, seed=31, noise=1.0))
+    pacsv.write_csv(pa.table(rows), str(tmp_path / "log.csv"))
+    pacsv.write_csv(pa.table(_one_row_late(rows)), str(tmp_path / "late.csv"))
+    control = ["--control-hz", "50", "--kp", "60", "--kd", "1.5", "--torque-limit", "33.5"]
+    for name, extra in (("log", []), ("late", []), ("fixed", ["--shift-actions", "1"])):
+        log = tmp_path / ("log.csv" if name == "log" else "late.csv")
+        assert acn("import", str(log), "--out", str(tmp_path / name), *control, *extra).returncode == 0
+    d = diagnose(load_measurements(tmp_path / "late"), Model.parse("mujoco"), FAST)
+    assert [f.check for f in d.data_checks] == ["action_row"] and "--shift-actions 1" in d.data_checks[0].message
+    assert "fix the data first" in d.reason
+    model = Model.parse("mujoco")
+    for name in ("log", "fixed"):
+        problem = prepare(load_measurements(tmp_path / name), model, FAST)
+        judge = problem.sample(problem.held_rows, FAST.judge_rows, salt=4)
+        residual = problem.residual_of(model.sim_config(problem.control), judge)
+        ok = np.isfinite(residual).all(1)
+        assert action_row(problem, model, judge[ok], residual[ok]) is None, name

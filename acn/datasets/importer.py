@@ -85,6 +85,7 @@ class ImportConfig:
     linvel_frame: str = "body"  # the frame the log's base_linvel is in (world: rotated into the body frame)
     angvel_frame: str = "body"  # the same for base_angvel
     leg_order: tuple[str, ...] = FOOT_NAMES  # the legs as the log orders them (legged_gym: FL, FR, RL, RR)
+    shift_actions: int = 0  # rows: each state takes the command logged this many rows later in its episode
 
 
 @dataclass
@@ -244,7 +245,7 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
     quaternion = any(c in cols for c in QUAT_COLUMNS)
     # a channel the logger wrote as an empty (all-NaN) column is a channel it did not log
     cols = {k: v for k, v in cols.items() if k in INDEX_COLUMNS or np.isfinite(v).any()}
-    cols = _reorder_legs(_orientation(cols), tuple(cfg.leg_order))
+    cols = _shift_actions(_reorder_legs(_orientation(cols), tuple(cfg.leg_order)), cfg.shift_actions)
     n = len(next(iter(cols.values()))) if cols else 0
     if "timestamp" not in cols:
         raise UserError(f"{log} has no timestamp column (s); map one with --map")
@@ -310,7 +311,7 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
                           "time_step_spread": round(spread, 4), "folded_into_position_targets": folded,
                           "segments_too_short": dropped, "dt_tolerance": cfg.dt_tolerance,
                           "linvel_frame": cfg.linvel_frame, "angvel_frame": cfg.angvel_frame,
-                          "leg_order": list(cfg.leg_order),
+                          "leg_order": list(cfg.leg_order), "shift_actions": cfg.shift_actions,
                           "checks": [f.to_json() for f in report.findings]}
         if writer.num_episodes == 0:
             raise UserError(f"{log}: no two consecutive good rows at {cfg.control_hz} Hz: nothing to import "
@@ -415,6 +416,25 @@ def _reorder_legs(cols: dict[str, np.ndarray], order: tuple[str, ...]) -> dict[s
             for pattern in ("{}_pos", "{}_vel", "action.{}", "effort.{}", *(f"{kind}.{{}}" for kind in HYBRID_COLUMNS)):
                 rename[pattern.format(f"{mine}_{joint}")] = pattern.format(f"{theirs}_{joint}")
     return {rename.get(name, name): values for name, values in cols.items()}
+
+
+def _shift_actions(cols: dict[str, np.ndarray], rows: int) -> dict[str, np.ndarray]:
+    """The command columns (actions and a hybrid command's parts) moved ``rows`` rows up within
+    each episode: row t takes row t + rows' command. Rows left without one get NaN, so the import
+    cuts them (a logger that writes the last action sent with the new observation: ``rows`` 1)."""
+    if not rows or not cols:
+        return cols
+    n = len(next(iter(cols.values())))
+    episode = cols.get("episode_index", np.zeros(n))
+    source = np.arange(n) + rows
+    valid = (source >= 0) & (source < n)
+    valid[valid] &= episode[source[valid]] == episode[valid]
+    out = dict(cols)
+    for name in (*ACTION_COLUMNS, *(c for columns in HYBRID_COLUMNS.values() for c in columns)):
+        if name in cols:
+            out[name] = np.full(n, np.nan)
+            out[name][valid] = cols[name][source[valid]]
+    return out
 
 
 def _time_steps(episode: np.ndarray, timestamp: np.ndarray) -> np.ndarray:

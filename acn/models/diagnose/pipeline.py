@@ -16,7 +16,8 @@ Verdict:
   that and no plausible candidate explains it.
 
 Before any model, the measurements' own consistency is checked (``acn.datasets.checks``: units,
-signs, frames, conventions); findings are listed with the diagnosis and named in the reason,
+signs, frames, conventions), and with the model, whether each state is paired with the action
+that drove it (``pairing``); findings are listed with the diagnosis and named in the reason,
 since a model compared with inconsistent data explains the inconsistency as physics.
 
 The noise floor is what ridge regressions on a library of state and action terms cannot
@@ -36,6 +37,7 @@ from acn.datasets import checks
 from acn.datasets.measurements import Measurements
 from acn.models.diagnose.add import Added, Chain, add_effect, auto, longest_removed
 from acn.models.diagnose.compare import Comparison, compare, floor_of, informative_horizon
+from acn.models.diagnose.pairing import action_row
 from acn.models.diagnose.problem import DiagnoseConfig, Problem, prepare
 from acn.models.diagnose.rank import (STRUCTURED_SHARE, Candidate, doubt, explained_share, finer_look, implausible,
                                       fits_noise_by_size, one_step_only, rank)
@@ -207,6 +209,8 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
     ok = np.isfinite(residual).all(1)
     judge_rows, residual = judge_rows[ok], residual[ok]
     mse = float(np.mean(residual ** 2))
+    if check_data and (pairing := action_row(problem, model, judge_rows, residual)):
+        findings = findings + [pairing]
     where = breakdown(problem, before)
     t1 = time.perf_counter()
     say("ranking the catalogue")

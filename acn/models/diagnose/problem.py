@@ -111,17 +111,18 @@ class Problem:
         return self.data.action[rows[:, None] + np.arange(self.steps(horizon))[None]]
 
     def predict(self, configs: SimConfig | list[SimConfig], rows: np.ndarray, horizon: int = 1,
-                model_of_row: np.ndarray | None = None, corrector=None) -> np.ndarray:
+                model_of_row: np.ndarray | None = None, corrector=None, shift: int = 0) -> np.ndarray:
         """Predicted state (N, 43) ``horizon`` diagnosis steps after measured s_t, under the measured
-        actions (``corrector``, at one step: each action corrected from the measured state it follows)."""
+        actions (``corrector``, at one step: each action corrected from the measured state it follows;
+        ``shift``: the actions, and those before them, of ``shift`` rows later, ``acn.models.diagnose.pairing``)."""
         d = self.data
-        actions = self.actions(rows, horizon)
+        actions = self.actions(rows + shift, horizon)
         if corrector is not None and horizon == 1:
             for i in range(self.unit):
                 actions[:, i] = corrector.correct(d.state[rows + i], actions[:, i])
         with Resimulator(self.backend, configs, threads=self.threads) as sim:
             pred = sim.run(d.starts(rows, self.backend, configs, model_of_row), actions,
-                           d.previous_actions(rows, self.history), model=model_of_row)
+                           d.previous_actions(rows + shift, self.history), model=model_of_row)
         return pred.state[:, -1]
 
     def measured(self, rows: np.ndarray, horizon: int = 1) -> np.ndarray:
