@@ -596,6 +596,9 @@ def import_main(argv: list[str] | None = None) -> int:
         hint = r.tolerance_hint(args.dt_tolerance)
         if hint:
             print(hint)
+        if r.partial_effort:
+            print(f"efforts of {len(r.partial_effort)} of 12 joints ({', '.join(r.partial_effort)}): not stored; "
+                  "applied torques are all 12 joints' or none")
         if r.missing:
             print(f"not in the log (stored as NaN, not compared): {', '.join(r.missing)}")
             if _estimated(r.missing):

@@ -248,3 +248,27 @@ def test_a_log_other_code_got_wrong_gets_one_line_naming_the_cause(tmp_path, log
     r = acn("import", str(tmp_path / "log.parquet"), "--out", str(tmp_path / "m"), *CONTROL, "--map",
             str(tmp_path / "map.json"))
     assert r.returncode == 2 and 'the "column" of \'FR_hip_pos\' must be a column name' in r.stderr, r.stderr
+
+
+def test_array_columns_duplicate_names_and_partial_efforts(tmp_path, log_rows, acn):
+    """A Parquet column of 12 joint angles per row is read one element each (q[0] ...) and mapped;
+    two columns of one name are refused; efforts of some joints only are named and not stored."""
+    joints = [f"{j}_pos" for j in JOINT_NAMES]
+    q = np.column_stack([log_rows[n] for n in joints])
+    table = {k: v for k, v in log_rows.items() if k not in joints}
+    pq.write_table(pa.table({**table, "q": pa.array(list(q), pa.list_(pa.float64()))}), str(tmp_path / "log.parquet"))
+    r = acn("import", str(tmp_path / "log.parquet"), "--out", str(tmp_path / "no_map"), *CONTROL)
+    assert r.returncode == 2 and '{"FR_hip_pos": "q[0]"}' in r.stderr, r.stderr
+    (tmp_path / "map.json").write_text(json.dumps({n: f"q[{i}]" for i, n in enumerate(joints)}))
+    r = acn("import", str(tmp_path / "log.parquet"), "--out", str(tmp_path / "ds"), *CONTROL, "--map",
+            str(tmp_path / "map.json"))
+    assert r.returncode == 0, r.stderr
+    np.testing.assert_allclose(load_measurements(tmp_path / "ds").state[:49, [STATE_NAMES.index(n) for n in joints]],
+                               q[:49], atol=1e-5)
+    (tmp_path / "dup.csv").write_text("timestamp,timestamp\n0,0\n")
+    r = acn("import", str(tmp_path / "dup.csv"), "--out", str(tmp_path / "dup"), *CONTROL)
+    assert r.returncode == 2 and "more than one column named 'timestamp'" in r.stderr, r.stderr
+    some = {**log_rows, **{f"effort.{j}": np.zeros_like(log_rows["timestamp"]) for j in JOINT_NAMES[:3]}}
+    pq.write_table(pa.table(some), str(tmp_path / "efforts.parquet"))
+    r = acn("import", str(tmp_path / "efforts.parquet"), "--out", str(tmp_path / "e"), *CONTROL)
+    assert r.returncode == 0 and "efforts of 3 of 12 joints" in r.stdout, r.stdout

@@ -101,6 +101,7 @@ class ImportReport:
     step_spread: float = 0.0  # 99th percentile of |time step / control period - 1| within episodes
     folded: list[str] = field(default_factory=list)  # hybrid command columns folded into the position targets
     quaternion: bool = False  # the trunk's orientation came from base_quat_* (converted to Euler angles)
+    partial_effort: list[str] = field(default_factory=list)  # effort.* columns of fewer than 12 joints: not stored
 
     def quaternion_hint(self) -> str | None:
         """A line where the orientation came from a quaternion and a check finds the trunk's
@@ -150,14 +151,38 @@ def read_table(path: Path) -> dict[str, np.ndarray]:
         raise UserError(f"{path} has no data rows (only a header: {', '.join(table.column_names[:4])}"
                         f"{', ...' if table.num_columns > 4 else ''})")
     out = {}
-    for name, col in zip(table.column_names, table.columns):
-        name = name.strip()
-        if pa.types.is_timestamp(col.type):  # a date-time: seconds since the epoch
+    names = [n.strip() for n in table.column_names]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise UserError(f"{path} has more than one column named {', '.join(map(repr, twice))}: rename them")
+    for name, col in zip(names, table.columns):
+        if pa.types.is_list(col.type) or pa.types.is_fixed_size_list(col.type) or pa.types.is_large_list(col.type):
+            out.update(_list_columns(name, col))
+        elif pa.types.is_timestamp(col.type):  # a date-time: seconds since the epoch
             unit = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}[col.type.unit]
             out[name] = col.cast(pa.int64()).to_numpy(zero_copy_only=False).astype(np.float64) * unit
         elif pa.types.is_integer(col.type) or pa.types.is_floating(col.type) or pa.types.is_boolean(col.type):
             out[name] = col.to_numpy(zero_copy_only=False).astype(np.float64)
     return out
+
+
+def _list_columns(name: str, col) -> dict[str, np.ndarray]:
+    """A column of equally long lists of numbers (a Parquet array per row, e.g. 12 joint angles)
+    as one column per element, ``name[0]``, ``name[1]``, ... (to map: ``{"FR_hip_pos": "q[0]"}``);
+    other list columns are skipped like other non-numeric columns."""
+    import pyarrow as pa
+
+    value_type = col.type.value_type
+    if not (pa.types.is_integer(value_type) or pa.types.is_floating(value_type)):
+        return {}
+    rows = col.to_pylist()
+    lengths = {len(r) for r in rows if r is not None}
+    if len(lengths) != 1:
+        return {}
+    width = lengths.pop()
+    values = np.array([[np.nan] * width if r is None else [np.nan if v is None else v for v in r] for r in rows],
+                      dtype=np.float64)
+    return {f"{name}[{i}]": values[:, i] for i in range(width)}
 
 
 def _separator(path: Path) -> str:
@@ -241,7 +266,8 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
             raise UserError(f"{name} must be one of {', '.join(FRAMES)}, got {frame!r}")
     if sorted(cfg.leg_order) != sorted(FOOT_NAMES):
         raise UserError(f"--leg-order must name each of {', '.join(FOOT_NAMES)} once, got {', '.join(cfg.leg_order)}")
-    cols = resolve_columns(read_table(log), read_map(Path(map_path) if map_path else None))
+    table = read_table(log)
+    cols = resolve_columns(table, read_map(Path(map_path) if map_path else None))
     quaternion = any(c in cols for c in QUAT_COLUMNS)
     # a channel the logger wrote as an empty (all-NaN) column is a channel it did not log
     cols = {k: v for k, v in cols.items() if k in INDEX_COLUMNS or np.isfinite(v).any()}
@@ -252,14 +278,18 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
     joint_pos = [c for c in GROUPS["joint_pos"] if c not in cols]
     actions = [c for c in ACTION_COLUMNS if c not in cols]
     if joint_pos or actions:
+        arrays = sorted({k.split("[")[0] for k in table if k.endswith("]") and "[" in k})
+        hint = (f" (its array columns are read one element each, {arrays[0]}[0], {arrays[0]}[1], ...: map them, "
+                f'e.g. {{"FR_hip_pos": "{arrays[0]}[0]"}})') if arrays else ""
         raise UserError(f"{log} lacks joint positions or actions, the minimum a measurement needs: "
-                        f"missing {', '.join(joint_pos + actions)}")
+                        f"missing {', '.join(joint_pos + actions)}{hint}")
     if n < 2:
         raise UserError(f"{log} has fewer than 2 rows")
     missing = [c for c in STATE_NAMES if c not in cols]
     state = _to_body_frame(np.column_stack([cols.get(c, np.full(n, np.nan)) for c in STATE_NAMES]), cfg)
     action, folded = _fold_hybrid(np.column_stack([cols[c] for c in ACTION_COLUMNS]), cols, cfg, state)
     has_effort = all(c in cols for c in EFFORT_COLUMNS)
+    partial_effort = [c for c in EFFORT_COLUMNS if c in cols] if not has_effort else []
     effort = np.column_stack([cols[c] for c in EFFORT_COLUMNS]) if has_effort else np.full((n, 12), np.nan)
     episode = cols.get("episode_index", np.zeros(n))
     timestamp = cols["timestamp"]
@@ -305,7 +335,7 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
                               cut_nonfinite=int((~good).sum()), time_breaks=reasons.get("split_time_gap", 0),
                               dropped_short=dropped, missing=missing,
                               findings=checks.check(written, period, cfg.action_mode), step_spread=spread,
-                              folded=folded, quaternion=quaternion)
+                              folded=folded, quaternion=quaternion, partial_effort=partial_effort)
         writer.meta.info[schema.ACN_KEY]["import"] = {"file": log.name, "rows": n, "transitions": transitions,
                           "rows_cut_nonfinite": report.cut_nonfinite, "time_step_breaks": report.time_breaks,
                           "time_step_spread": round(spread, 4), "folded_into_position_targets": folded,
