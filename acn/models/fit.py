@@ -600,7 +600,7 @@ def fit(paths: list[str | Path], cfg: FitConfig, log=print, target=None) -> tupl
     def log_epoch(h: dict) -> None:
         if h["epoch"] % max(1, cfg.epochs // 5) == 0 or h["epoch"] == cfg.epochs:
             log(f"epoch {h['epoch']}: train loss {h['train_loss']:.5f}"
-                + (f" ({h['threads']} torch threads)" if "threads" in h else ""))
+                + (f" ({h['threads']} torch thread{'s' if h['threads'] > 1 else ''})" if "threads" in h else ""))
 
     history = train(model, tr, cfg, on_epoch=log_epoch)
     timing["train_seconds"] = time.perf_counter() - t
