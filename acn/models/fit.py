@@ -326,8 +326,9 @@ def train(model: Corrector, tr: Split, cfg: FitConfig, on_epoch=None, epochs: in
     the two networks' first layers as one matmul, fused Adam on one tensor); where the hardware
     has native bf16, weights and inputs are held in bf16 for the matmuls while Adam updates a
     float32 master copy and the loss is float32; the loss's gradient is written out
-    (``acn.models.acn``). On a GPU each full-batch step is replayed as one CUDA graph
-    (``GraphedStep``; ``cfg.cuda_graph``).
+    (``acn.models.acn``). On a CPU the torch thread count is chosen by timing the steps
+    (``acn.models.threads.AdaptiveThreads``) unless ``cfg.train_threads`` fixes it. On a GPU each
+    full-batch step is replayed as one CUDA graph (``GraphedStep``; ``cfg.cuda_graph``).
     """
     cfg = cfg.resolved()
     epochs = cfg.epochs if epochs is None else epochs
