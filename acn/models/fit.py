@@ -134,6 +134,8 @@ class FitConfig:
             raise UserError("--device cuda: no CUDA device is available")
         if self.lr_schedule not in (None, "constant", "cosine"):
             raise UserError(f"--lr-schedule must be constant or cosine, got {self.lr_schedule!r}")
+        if self.train_threads is None or self.train_threads < 0:
+            raise UserError(f"--train-threads must be 0 (chosen by timing) or a count, got {self.train_threads}")
         if self.precision not in ("auto", "bf16", "fp32"):
             raise UserError(f"--precision must be auto, bf16 or fp32, got {self.precision!r}")
         if self.filter_percentile is not None and not 0 < self.filter_percentile <= 100:
