@@ -592,7 +592,8 @@ def import_main(argv: list[str] | None = None) -> int:
         if {"action_kp", "action_kd"} & set(r.folded):
             print("gains per row: the targets give the command's torque at each row's logged state, q + (tau + kd qd) "
                   "/ kp with --kp, --kd (exact there; within the control period the model's PD stiffens with "
-                  "those gains)")
+                  "those gains, so effects that act through it, damping, friction, armature, latency, backlash, "
+                  "come out biased by 10-40 %)")
         hint = r.tolerance_hint(args.dt_tolerance)
         if hint:
             print(hint)
