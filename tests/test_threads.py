@@ -26,7 +26,7 @@ def sleeper(seconds: dict[int, float]):
 
 
 def test_the_faster_count_is_chosen_and_followed_when_the_load_changes():
-    seconds = {1: 0.0005, 2: 0.004}
+    seconds = {1: 0.0005, 2: 0.01}  # far apart: on a loaded machine a 0.5 ms sleep takes a few ms
     before = torch.get_num_threads()
     with AdaptiveThreads(candidates=(1, 2), settle=1, window_s=0.01, every_s=0.1) as threads:
         threads(sleeper(seconds))
@@ -35,7 +35,7 @@ def test_the_faster_count_is_chosen_and_followed_when_the_load_changes():
         assert threads.chosen == 1 and threads.steps[2] == 4  # one settling, three timed steps on the slow count
         threads(sleeper(seconds))
         assert torch.get_num_threads() == 1
-        seconds.update({1: 0.004, 2: 0.0005})  # the load changes: now two threads are faster
+        seconds.update({1: 0.01, 2: 0.0005})  # the load changes: now two threads are faster
         deadline = time.perf_counter() + 5.0
         while threads.chosen != 2 and time.perf_counter() < deadline:
             threads(sleeper(seconds))
@@ -64,12 +64,12 @@ def test_a_slow_candidate_is_left_at_once_and_a_kept_choice_is_probed_less_often
 
 
 def test_a_chosen_count_that_slows_down_is_probed_again_at_once():
-    seconds = {1: 0.0005, 2: 0.002}
+    seconds = {1: 0.0005, 2: 0.005}
     with AdaptiveThreads(candidates=(1, 2), settle=1, window_s=0.005, every_s=60.0) as threads:
         while threads.chosen == 0:
             threads(sleeper(seconds))
         assert threads.chosen == 1
-        seconds[1] = 0.006  # another process takes the core: the next probe is not 60 s away
+        seconds[1] = 0.02  # another process takes the core: the next probe is not 60 s away
         deadline = time.perf_counter() + 2.0
         while threads.chosen != 2 and time.perf_counter() < deadline:
             threads(sleeper(seconds))
