@@ -606,8 +606,8 @@ def import_main(argv: list[str] | None = None) -> int:
                 print(f"a diagnosis starts its model from estimates of them: {_estimated(r.missing)}")
         for f in r.findings:
             print(f"check ({f.check}): {f.message}")
-        if r.quaternion_hint():
-            print(r.quaternion_hint())
+        if hint := r.quaternion_hint():
+            print(hint)
         if r.findings:
             print(f"{len(r.findings)} consistency finding(s): a model compared with these data would explain them as "
                   "physics; fix the map and import again, or diagnose knowing them")

@@ -64,8 +64,8 @@ HYBRID_COLUMNS = {"action_vel": TARGET_VEL_COLUMNS, "action_torque": FEEDFORWARD
                   "action_kd": KD_COLUMNS}
 QUAT_COLUMNS = ("base_quat_w", "base_quat_x", "base_quat_y", "base_quat_z")  # the trunk's orientation, world
 INDEX_COLUMNS = ("episode_index", "timestamp")
-KNOWN_COLUMNS = (*INDEX_COLUMNS, *STATE_NAMES, *QUAT_COLUMNS, *ACTION_COLUMNS, *EFFORT_COLUMNS,
-                 *(c for columns in HYBRID_COLUMNS.values() for c in columns))
+COMMAND_COLUMNS = (*ACTION_COLUMNS, *(c for columns in HYBRID_COLUMNS.values() for c in columns))  # what is sent
+KNOWN_COLUMNS = (*INDEX_COLUMNS, *STATE_NAMES, *QUAT_COLUMNS, *COMMAND_COLUMNS, *EFFORT_COLUMNS)
 FRAMES = ("body", "world")
 MAP_ENTRY_KEYS = ("column", "scale", "offset", "threshold")
 JITTER_MAX = 0.25  # a time-step spread up to this share of the period is taken as jitter (ImportReport.tolerance_hint)
@@ -460,7 +460,7 @@ def _shift_actions(cols: dict[str, np.ndarray], rows: int) -> dict[str, np.ndarr
     valid = (source >= 0) & (source < n)
     valid[valid] &= episode[source[valid]] == episode[valid]
     out = dict(cols)
-    for name in (*ACTION_COLUMNS, *(c for columns in HYBRID_COLUMNS.values() for c in columns)):
+    for name in COMMAND_COLUMNS:
         if name in cols:
             out[name] = np.full(n, np.nan)
             out[name][valid] = cols[name][source[valid]]
@@ -483,20 +483,19 @@ def _check_contiguous(episode: np.ndarray) -> None:
                         "episode_index, then timestamp")
 
 
-def _check_time_step(steps: np.ndarray, period: float, tol: float, timestamp: np.ndarray | None = None) -> None:
+def _check_time_step(steps: np.ndarray, period: float, tol: float, timestamp: np.ndarray) -> None:
     """Refuse a log whose median time step is not the control period (one line: the likely cause)."""
     if not len(steps):
         return
     med = float(np.median(steps))
     if abs(med - period) <= tol * period:
         return
-    if timestamp is not None:  # float32 timestamps far from zero step in coarse increments
-        t = timestamp[np.isfinite(timestamp)]
-        top = float(np.abs(t).max()) if len(t) else 0.0
-        if len(t) and np.array_equal(t, t.astype(np.float32)) and np.spacing(np.float32(top)) > 0.05 * period:
-            raise UserError(f"the timestamps are float32 numbers: near {top:.6g} s they can only step by "
-                            f"{float(np.spacing(np.float32(top))):.3g} s, too coarse for {1 / period:g} Hz; write "
-                            "them as float64, or as seconds since the log's start")
+    t = timestamp[np.isfinite(timestamp)]  # float32 timestamps far from zero step in coarse increments
+    top = float(np.abs(t).max()) if len(t) else 0.0
+    if len(t) and np.array_equal(t, t.astype(np.float32)) and np.spacing(np.float32(top)) > 0.05 * period:
+        raise UserError(f"the timestamps are float32 numbers: near {top:.6g} s they can only step by "
+                        f"{float(np.spacing(np.float32(top))):.3g} s, too coarse for {1 / period:g} Hz; write "
+                        "them as float64, or as seconds since the log's start")
     ratio = med / period
     unit = next((u for u, f in (("ms", 1e3), ("us", 1e6), ("ns", 1e9)) if abs(ratio / f - 1) <= tol), None)
     hint = (f"timestamps in {unit}? map timestamp with \"scale\": {1 / {'ms': 1e3, 'us': 1e6, 'ns': 1e9}[unit]:g}"

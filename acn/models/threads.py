@@ -2,15 +2,15 @@
 
 Small networks on a small shared CPU are the case where the right answer changes with the
 machine's load. Measured on 2 shared cores (AMD EPYC, bf16), acn-fit's training step at the
-paper's network and batch 256: 47-63k samples/s on one thread and 103k on two while the machine
-is otherwise idle, but 46-58k on one and 16-18k on two while another process keeps one core busy
+paper's network and batch 256: 55-66k samples/s on one thread and 80-96k on two while the machine
+is otherwise idle, but 46-69k on one and 16-18k on two while another process keeps one core busy
 (OpenMP's threads wait on each other whenever one is descheduled). ``AdaptiveThreads`` times the
-candidate counts on the loop's own steps, interleaved, and runs on the fastest until the next
-probe, so it follows the load as it changes.
+candidate counts on the loop's own steps, one stretch each, and runs on the fastest until the
+next probe, so it follows the load as it changes.
 
 Changing the count between steps does not change the results here: oneDNN splits a matmul's
 rows and columns among threads, not its sums, so a fit on one or two threads gives the same
-weights to the bit (``tests/test_fit.py`` checks it on this machine's kernels).
+weights to the bit (``tests/test_threads.py`` checks it on this machine's kernels).
 """
 
 from __future__ import annotations
