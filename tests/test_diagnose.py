@@ -843,3 +843,34 @@ def test_actions_logged_one_row_late_are_named_and_shifted_back_on_import(tmp_pa
         residual = problem.residual_of(model.sim_config(problem.control), judge)
         ok = np.isfinite(residual).all(1)
         assert action_row(problem, model, judge[ok], residual[ok]) is None, name
+
+
+def test_a_log_simulated_at_a_coarser_physics_rate_is_named_and_right_when_imported_at_it(tmp_path, acn):
+    """A log from a simulator stepping at 5 ms with stiff gains (its joints chatter), without any
+    effect: at the model's 1 kHz no catalogue effect explains it, and the diagnosis names the rate
+    (the model's one step is far better at 200 Hz) and says to fix the data; imported with
+    --physics-hz 200, and for a log simulated at 1 kHz, there is no rate to name."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+    from robot_log import simulate
+
+    from acn.models.diagnose.rate import physics_rate
+
+    pacsv.write_csv(pa.table(simulate(LogSpec(seconds=4.0, episodes=2, seed=31, noise=1.0, physics_hz=200))),
+                    str(tmp_path / "coarse.csv"))
+    pacsv.write_csv(pa.table(simulate(LogSpec(seconds=4.0, episodes=2, seed=32, noise=1.0))), str(tmp_path / "fine.csv"))
+    control = ["--control-hz", "50", "--kp", "60", "--kd", "1.5", "--torque-limit", "33.5"]
+    for name, log, extra in (("coarse", "coarse.csv", []), ("at_200", "coarse.csv", ["--physics-hz", "200"]),
+                             ("fine", "fine.csv", [])):
+        assert acn("import", str(tmp_path / log), "--out", str(tmp_path / name), *control, *extra).returncode == 0
+    d = diagnose(load_measurements(tmp_path / "coarse"), Model.parse("mujoco"), FAST)
+    rate = [f for f in d.data_checks if f.check == "physics_rate"]  # beside: the chattering joints' velocities
+    assert len(rate) == 1 and "--physics-hz 200" in rate[0].message
+    assert "fix the data first" in d.reason
+    model = Model.parse("mujoco")
+    for name in ("at_200", "fine"):
+        problem = prepare(load_measurements(tmp_path / name), model, FAST)
+        judge = problem.sample(problem.held_rows, FAST.judge_rows, salt=4)
+        residual = problem.residual_of(model.sim_config(problem.control), judge)
+        ok = np.isfinite(residual).all(1)
+        assert physics_rate(problem, model, judge[ok], residual[ok]) is None, name

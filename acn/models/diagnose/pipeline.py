@@ -39,6 +39,7 @@ from acn.models.diagnose.add import Added, Chain, add_effect, auto, longest_remo
 from acn.models.diagnose.compare import Comparison, compare, floor_of, informative_horizon
 from acn.models.diagnose.pairing import action_row
 from acn.models.diagnose.problem import DiagnoseConfig, Problem, prepare
+from acn.models.diagnose.rate import physics_rate
 from acn.models.diagnose.rank import (STRUCTURED_SHARE, Candidate, doubt, explained_share, finer_look, implausible,
                                       fits_noise_by_size, one_step_only, rank)
 from acn.models.diagnose.where import breakdown
@@ -211,6 +212,8 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
     mse = float(np.mean(residual ** 2))
     if check_data and (pairing := action_row(problem, model, judge_rows, residual)):
         findings = findings + [pairing]
+    if check_data and (rate := physics_rate(problem, model, judge_rows, residual)):
+        findings = findings + [rate]
     where = breakdown(problem, before)
     t1 = time.perf_counter()
     say("ranking the catalogue")
