@@ -12,7 +12,7 @@ catalogue undoes that: a nominal noisy 2 x 4 s log came out ``unexplained`` and 
 was not found, while imported with ``--physics-hz 200`` they came out ``none`` and 14.4 ms.
 
 ``physics_rate`` re-simulates the model's one step from the same measured states at coarser
-rates (the control rate times ``RATES``) and names the rate whose one-step error is at most
+rates (the control rate times ``RATES``, 100 Hz or more) and names the rate whose one-step error is at most
 ``RATE_SHARE`` of the model's own, clearly lower row by row. Measured (noisy logs, 50 Hz): the
 chattering 200 Hz logs' one-step error at 200 Hz is 0.14 (nominal) and 0.20 (latency) of the
 1 kHz model's (0.14 and 0.24 at a 100 Hz control rate); for 1 kHz logs (nominal, damping,
@@ -32,6 +32,7 @@ import numpy as np
 
 from acn.datasets import checks
 from acn.models.diagnose.problem import Problem
+from acn.toolkit.backends.base import MAX_PHYSICS_DT
 from acn.toolkit.effects import Model
 
 RATES = (1, 2, 3, 4, 5, 6, 8, 10)  # candidate physics steps per control step, below the model's own
@@ -41,8 +42,10 @@ MIN_ROWS = 40
 
 
 def candidate_rates(control_hz: float, physics_hz: float) -> list[int]:
-    """Physics rates (Hz) to try: the control rate times ``RATES``, at most half the model's."""
-    return [round(m * control_hz) for m in RATES if m * control_hz <= physics_hz / 2 + 1e-9]
+    """Physics rates (Hz) to try: the control rate times ``RATES``, at most half the model's and
+    no coarser than a backend's coarsest step (``MAX_PHYSICS_DT``)."""
+    return [round(m * control_hz) for m in RATES
+            if 1.0 / MAX_PHYSICS_DT - 1e-9 <= m * control_hz <= physics_hz / 2 + 1e-9]
 
 
 def physics_rate(problem: Problem, model: Model, rows: np.ndarray, residual: np.ndarray) -> checks.Finding | None:

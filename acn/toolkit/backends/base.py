@@ -81,8 +81,8 @@ class SimConfig:
     def validate(self) -> None:
         if self.action_mode not in ACTION_MODES:
             raise ValueError(f"action mode must be one of {ACTION_MODES}, got {self.action_mode!r}")
-        if not (0 < self.physics_dt <= 0.01):
-            raise ValueError(f"physics_dt must be in (0, 0.01] s, got {self.physics_dt}")
+        if not (0 < self.physics_dt <= MAX_PHYSICS_DT):
+            raise ValueError(f"physics_dt must be in (0, {MAX_PHYSICS_DT}] s, got {self.physics_dt}")
         if self.substeps < 1:
             raise ValueError(f"substeps must be >= 1, got {self.substeps}")
         if (per_joint(self.kp) < 0).any() or (per_joint(self.kd) < 0).any() or not self.torque_limit > 0:
@@ -95,6 +95,7 @@ def pd_torque(target: np.ndarray, q: np.ndarray, qd: np.ndarray, cfg: SimConfig)
 
 
 # A state is "absurd" (the simulator blew up) beyond these bounds.
+MAX_PHYSICS_DT = 0.01      # s, the coarsest physics step a backend takes
 MAX_ABS_LINVEL = 50.0      # m/s
 MAX_ABS_JOINT_VEL = 500.0  # rad/s
 MAX_ABS_POSITION = 1e3     # m
