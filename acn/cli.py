@@ -153,7 +153,8 @@ def collect_parser() -> argparse.ArgumentParser:
     p.add_argument("--action-mode", default="position", choices=ACTION_MODES,
                    help="position: joint targets, PD at the physics rate; torque: joint torques")
     p.add_argument("--control-hz", type=_positive_int, default=50)
-    p.add_argument("--physics-hz", type=_positive_int, default=1000)
+    p.add_argument("--physics-hz", type=_positive_int, default=None,
+                   help="physics rate (default: the multiple of --control-hz nearest 1 kHz)")
     p.add_argument("--kp", type=_joint_gains(0, False), default=60.0, help="PD stiffness, N m/rad" + _GAINS_HELP)
     p.add_argument("--kd", type=_joint_gains(0, False), default=1.5, help="PD damping, N m s/rad" + _GAINS_HELP)
     p.add_argument("--torque-limit", type=_positive_float, default=33.5, help="N m, every joint")
@@ -171,17 +172,17 @@ def collect_parser() -> argparse.ArgumentParser:
 
 def collect_config_from_args(args: argparse.Namespace):
     from acn.toolkit.backends import SimConfig
+    from acn.toolkit.backends.base import physics_hz_for
     from acn.toolkit.collector import CollectConfig
 
-    if args.physics_hz % args.control_hz:
-        raise UserError(f"--physics-hz ({args.physics_hz}) must be a multiple of --control-hz ({args.control_hz})")
+    physics_hz = physics_hz_for(args.control_hz, args.physics_hz)
     if args.corrector is not None and not args.corrector.is_dir():
         raise UserError(f"corrector directory {args.corrector} does not exist")
     if args.corrector is not None:
         from acn.models.corrector import load_for_target
 
         load_for_target(args.corrector, [])  # the collected target is the simulator as is
-    sim = SimConfig(physics_dt=1.0 / args.physics_hz, substeps=args.physics_hz // args.control_hz,
+    sim = SimConfig(physics_dt=1.0 / physics_hz, substeps=physics_hz // args.control_hz,
                     action_mode=args.action_mode, kp=args.kp, kd=args.kd, torque_limit=args.torque_limit)
     return CollectConfig(source=args.source, target=args.target, policy=args.policy, episodes=args.episodes,
                          seconds=args.seconds, seed=args.seed, sim=sim,
@@ -538,7 +539,8 @@ def import_parser() -> argparse.ArgumentParser:
     p.add_argument("--kd", required=True, type=_joint_gains(0, True), help="joint PD damping, N m s/rad" + _GAINS_HELP)
     p.add_argument("--torque-limit", required=True, type=_positive_float, help="N m, every joint")
     p.add_argument("--action-mode", default="position", choices=ACTION_MODES)
-    p.add_argument("--physics-hz", type=_positive_int, default=1000, help="physics rate a model simulates it at")
+    p.add_argument("--physics-hz", type=_positive_int, default=None,
+                   help="physics rate a model simulates it at (default: the multiple of --control-hz nearest 1 kHz)")
     p.add_argument("--map", type=Path, default=None, dest="map_file", metavar="MAP.json",
                    help='rename and scale columns: {"FR_hip_pos": "q0", "FR_thigh_pos": {"column": "q1_deg", '
                    '"scale": 0.0174533, "offset": 0.0}}; foot forces as contact flags: '
@@ -575,6 +577,7 @@ def import_main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         from acn.datasets.importer import ImportConfig, import_log
+        from acn.toolkit.backends.base import PHYSICS_HZ, physics_hz_for
 
         if args.out.exists() and not args.overwrite:
             raise UserError(f"output directory {args.out} exists (use --overwrite to replace it)")
@@ -594,6 +597,9 @@ def import_main(argv: list[str] | None = None) -> int:
                   "/ kp with --kp, --kd (exact there; within the control period the model's PD stiffens with "
                   "those gains, so effects that act through it, damping, friction, armature, latency, backlash, "
                   "come out biased by 10-40 %)")
+        if args.physics_hz is None and (hz := physics_hz_for(args.control_hz)) != PHYSICS_HZ:
+            print(f"the model simulates it at {hz} Hz, the multiple of {args.control_hz} Hz nearest {PHYSICS_HZ} Hz "
+                  "(--physics-hz sets it)")
         hint = r.tolerance_hint(args.dt_tolerance)
         if hint:
             print(hint)

@@ -29,7 +29,7 @@ def test_help():
     (["--seconds", "-3"], "> 0"),
     (["--seed", "-1"], ">= 0"),
     (["--workers", "0"], ">= 1"),
-    (["--control-hz", "300"], "multiple of --control-hz"),
+    (["--control-hz", "300", "--physics-hz", "1000"], "multiple of --control-hz"),
     (["--corrector", "/nonexistent/model"], "does not exist"),
 ])
 def test_bad_input_is_one_line_and_exit_2(tmp_path, args, message):

@@ -64,6 +64,22 @@ def test_a_jittery_control_loop_gets_the_tolerance_that_keeps_its_episodes_whole
     assert load(tmp_path / "whole").meta.info["acn"]["import"]["time_step_spread"] == pytest.approx(0.15, abs=1e-3)
 
 
+def test_a_control_rate_that_does_not_divide_1_khz_gets_the_nearest_physics_rate(tmp_path, acn):
+    """A 60 Hz log (PyBullet's 240 Hz physics, four steps per action): without --physics-hz the model
+    steps at 1020 Hz (17 per action) and the import says so; a rate given that is not a multiple of
+    the control rate is one line and exit 2."""
+    write_log(tmp_path / "log.csv", LogSpec(seconds=1.0, episodes=1, seed=5, control_hz=60, physics_hz=240))
+    control = ["--control-hz", "60", *CONTROL[2:]]
+    r = acn("import", str(tmp_path / "log.csv"), "--out", str(tmp_path / "d"), *control)
+    assert r.returncode == 0 and "simulates it at 1020 Hz" in r.stdout, r.stdout + r.stderr
+    info = load(tmp_path / "d").meta.info["acn"]
+    assert info["substeps"] == 17 and info["physics_dt"] == pytest.approx(1 / 1020)
+    r = acn("import", str(tmp_path / "log.csv"), "--out", str(tmp_path / "e"), *control, "--physics-hz", "1000")
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        "acn-import: error: --physics-hz (1000) must be a multiple of --control-hz (60)"], r.stderr
+    assert not (tmp_path / "e").exists()
+
+
 def test_a_hybrid_command_is_folded_into_the_position_targets(tmp_path, acn):
     """An MIT-style command (q_des, dq_des, tau_ff, PD gains per joint type) becomes the position
     target that drives the PD the same way; a partial set of columns is refused in one line."""

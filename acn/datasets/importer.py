@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -44,7 +44,7 @@ import numpy as np
 from acn.datasets import checks, schema
 from acn.errors import UserError
 from acn.jsonfile import read_json
-from acn.toolkit.backends.base import joint_gains
+from acn.toolkit.backends.base import joint_gains, physics_hz_for
 from acn.toolkit.collector import FALL_RULE, Episode, Trace, fallen
 from acn.toolkit.robot import ModelParams, per_joint
 from acn.toolkit.rotations import quat_to_rpy, rpy_to_matrices
@@ -80,7 +80,7 @@ class ImportConfig:
     kd: float | tuple[float, ...]  # N m s/rad
     torque_limit: float
     action_mode: str = "position"
-    physics_hz: int = 1000
+    physics_hz: int | None = None  # None: the multiple of control_hz nearest 1 kHz (``physics_hz_for``)
     dt_tolerance: float = 0.1  # fraction of the control period a time step may deviate
     linvel_frame: str = "body"  # the frame the log's base_linvel is in (world: rotated into the body frame)
     angvel_frame: str = "body"  # the same for base_angvel
@@ -259,8 +259,7 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
     from acn.datasets.writer import DatasetWriter
 
     log = Path(log)
-    if cfg.physics_hz % cfg.control_hz:
-        raise UserError(f"--physics-hz ({cfg.physics_hz}) must be a multiple of --control-hz ({cfg.control_hz})")
+    cfg = replace(cfg, physics_hz=physics_hz_for(cfg.control_hz, cfg.physics_hz))
     for name, frame in (("--linvel-frame", cfg.linvel_frame), ("--angvel-frame", cfg.angvel_frame)):
         if frame not in FRAMES:
             raise UserError(f"{name} must be one of {', '.join(FRAMES)}, got {frame!r}")

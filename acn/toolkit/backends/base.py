@@ -96,6 +96,20 @@ def pd_torque(target: np.ndarray, q: np.ndarray, qd: np.ndarray, cfg: SimConfig)
 
 # A state is "absurd" (the simulator blew up) beyond these bounds.
 MAX_PHYSICS_DT = 0.01      # s, the coarsest physics step a backend takes
+PHYSICS_HZ = 1000          # Hz, the physics rate a model steps at unless told otherwise
+
+
+def physics_hz_for(control_hz: int, physics_hz: int | None = None) -> int:
+    """The physics rate for a control rate: ``physics_hz`` where given (a multiple of the control
+    rate, else a one-line error), otherwise the multiple of the control rate nearest ``PHYSICS_HZ``
+    (1020 Hz at 60 Hz: PyBullet's 240 Hz logs are often controlled at 60 Hz)."""
+    from acn.errors import UserError
+
+    if physics_hz is None:
+        return control_hz * max(1, round(PHYSICS_HZ / control_hz))
+    if physics_hz % control_hz:
+        raise UserError(f"--physics-hz ({physics_hz}) must be a multiple of --control-hz ({control_hz})")
+    return physics_hz
 MAX_ABS_LINVEL = 50.0      # m/s
 MAX_ABS_JOINT_VEL = 500.0  # rad/s
 MAX_ABS_POSITION = 1e3     # m
