@@ -8,6 +8,8 @@ import sys
 
 import numpy as np
 import pytest
+from dataclasses import replace
+
 import torch
 
 from acn.cli import fit_main
@@ -461,3 +463,46 @@ def test_a_corrector_fitted_on_top_of_a_physical_model_learns_what_it_leaves(inv
         fit([paired], FitConfig(variant="paper", **FAST), log=lambda s: None, target=softer)
     with pytest.raises(UserError, match="pybullet model"):
         fit([paired], FitConfig(**FAST), log=lambda s: None, target=Model("pybullet"))
+
+
+@pytest.mark.parametrize("variant", ["paper", "mujoco-jacobian", "inverse"])
+@pytest.mark.parametrize("dtype", [torch.float32, torch.bfloat16])
+def test_the_written_out_loss_trains_the_weights_autograd_trains(variant, dtype):
+    """Twenty Adam steps (full and partial batches) with the loss's gradient written out
+    (``_batch_loss_and_grads``) and through autograd (``_batch_loss``) end on the same weights,
+    to the bit."""
+    from acn.models.backprop import FlatMLPs
+    from acn.models.corrector import default_config
+    from acn.models.fit import Split, _batch_loss, _batch_loss_and_grads, written_out
+
+    cfg = FitConfig(variant=variant)
+    assert written_out(cfg, variant == "inverse") and not written_out(replace(cfg, jacobian_weight=1.0), True)
+    gen = torch.Generator().manual_seed(1)
+    n = 300
+    x = torch.randn(n, 52, generator=gen)  # each network reads its first n_in columns
+    labelled = variant == "inverse"
+    split = Split(x, torch.randn(n, 33, generator=gen),
+                  torch.randn(n, 33, 12, generator=gen) if variant != "paper" else None,
+                  torch.randn(n, 12, generator=gen) if labelled else None, torch.ones(12) if labelled else None)
+    weights = []
+    for closed in (True, False):
+        torch.manual_seed(0)
+        model = Corrector(default_config(variant, 32, 2))
+        n_in = model.net.action_net[0].in_features
+        net = model.net
+        flat = FlatMLPs([m for m in (net.action_net, net.jacobian_net) if m is not None], dtype)
+        opt = torch.optim.Adam([flat.master], lr=1e-2, fused=True)
+        for k in range(20):
+            idx = torch.arange(k * 37, k * 37 + (64 if k % 3 else 29)) % n
+            batch = replace(split, **{f: getattr(split, f)[idx] for f in ("x", "residual", "jacobian", "label")
+                                      if getattr(split, f) is not None})
+            batch = replace(batch, x=batch.x[:, :n_in].to(dtype))
+            if closed:
+                flat.step(batch.x, grads_of=lambda out: _batch_loss_and_grads(out, batch, cfg, net))
+            else:
+                flat.step(batch.x, lambda out: _batch_loss(out[0], out[1].view(len(idx), 33, 12) if len(out) > 1
+                                                           else None, batch, cfg, report_fit=False)[0])
+            opt.step()
+            flat.sync()
+        weights.append(flat.master.detach().clone())
+    assert torch.equal(weights[0], weights[1])

@@ -11,8 +11,10 @@ casts of each weight and gradient) as in the matmuls. Here:
 - weights and activations are held in the training dtype (bf16 where the hardware has it); the
   gradients are written by ``torch.mm(..., out=)`` straight into a flat gradient buffer in that
   dtype and cast to the float32 master once per step;
-- only the loss goes through autograd: it is evaluated on the networks' outputs (float32 leaves),
-  so every variant's loss (``acn.models.fit._batch_loss``) works unchanged.
+- the loss is evaluated on the networks' outputs in float32, with its gradient written out where
+  the variant's loss has one (``acn.models.fit._batch_loss_and_grads``; autograd's bookkeeping
+  for the loss alone cost as much as the loss), through autograd otherwise (float32 leaves), so
+  every variant's loss (``acn.models.fit._batch_loss``) works.
 
 Only ``mlp`` networks (Linear, SiLU, ..., Linear) are handled; ``tests/test_fit.py`` checks the
 gradients against autograd's.
@@ -68,9 +70,12 @@ class FlatMLPs:
     def _views(self, flat: torch.Tensor) -> list[torch.Tensor]:
         return [v.view_as(p) for v, p in zip(flat.split([p.numel() for p in self.params]), self.params)]
 
-    def step(self, x: torch.Tensor, loss_of: Callable[[list[torch.Tensor]], torch.Tensor]) -> torch.Tensor:
-        """Forward ``x`` (rows x n_in, training dtype) through every network, ``loss_of`` on their
-        float32 outputs (autograd), backward into ``master.grad``; returns the loss."""
+    def step(self, x: torch.Tensor, loss_of: Callable[[list[torch.Tensor]], torch.Tensor] | None = None,
+             grads_of: Callable[[list[torch.Tensor]], tuple[torch.Tensor, list[torch.Tensor]]] | None = None
+             ) -> torch.Tensor:
+        """Forward ``x`` (rows x n_in, training dtype) through every network, the loss on their
+        float32 outputs, backward into ``master.grad``; returns the loss. The loss is ``loss_of``
+        through autograd, or ``grads_of``: (loss, its gradient for each output) written out."""
         h0 = self.hidden
         z0 = torch.addmm(self.b0, x, self.w0.t())        # all networks' first layers: one matmul
         h = F.silu(z0)
@@ -88,12 +93,16 @@ class FlatMLPs:
             outs.append(torch.addmm(self.w[id(last.bias)], hi, self.w[id(last.weight)].t()))
             inputs.append(acts)
             pre.append(zi)
-        leaves = [o.float().requires_grad_() for o in outs]
-        loss = loss_of(leaves)
-        loss.backward()
+        if grads_of is not None:
+            loss, g_outs = grads_of([o.float() for o in outs])
+        else:
+            leaves = [o.float().requires_grad_() for o in outs]
+            loss = loss_of(leaves)
+            loss.backward()
+            g_outs = [leaf.grad for leaf in leaves]
         g_h0 = []                                        # per network: d loss / d first layer's output
-        for ls, acts, zi, leaf in zip(self.layers, inputs, pre, leaves):
-            g = leaf.grad.to(self.dtype)
+        for ls, acts, zi, g_out in zip(self.layers, inputs, pre, g_outs):
+            g = g_out.to(self.dtype)
             for l in range(len(ls) - 1, 0, -1):
                 lin = ls[l]
                 torch.mm(g.t(), acts[l], out=self.g[id(lin.weight)])

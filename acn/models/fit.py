@@ -55,7 +55,8 @@ import torch
 from acn.atomic import move_into_place, temporary_beside
 from acn.datasets.reader import PairedTransitions, load_paired, percentile_filter
 from acn.errors import UserError
-from acn.models.acn import INPUT_CHANNELS, LABELLED, OUTPUT_CHANNELS, VARIANTS, acn_loss, input_channels, regression_loss
+from acn.models.acn import (INPUT_CHANNELS, LABELLED, OUTPUT_CHANNELS, VARIANTS, acn_loss, acn_loss_and_grad,
+                            input_channels, regression_loss, regression_loss_and_grad)
 from acn.models.backprop import FlatMLPs
 from acn.models.corrector import Corrector, default_config
 from acn.models.evaluate import output_spread
@@ -320,6 +321,25 @@ def _batch_loss(delta_out: torch.Tensor, j_pred: torch.Tensor | None, batch: Spl
     return loss, fit
 
 
+def _batch_loss_and_grads(out: list[torch.Tensor], batch: Split, cfg: FitConfig, net) -> tuple[torch.Tensor, list]:
+    """``_batch_loss``'s training loss and its gradient for each network output (ActionNet's, then
+    JacobianNet's flattened), written out, for the losses that have one (``written_out``)."""
+    m = len(out[0])
+    if batch.label is not None:
+        loss, g = regression_loss_and_grad(out[0], batch.label)
+        return loss, [g]
+    jac = out[1].view(m, net.n_out, net.n_action) if len(out) > 1 else batch.jacobian
+    loss, g_delta, g_jac = acn_loss_and_grad(out[0], jac, batch.residual, cfg.lambda_l1)
+    return loss, [g_delta] + ([g_jac.view(m, -1)] if len(out) > 1 else [])
+
+
+def written_out(cfg: FitConfig, labelled: bool) -> bool:
+    """Whether the training loss's gradient is written out (``_batch_loss_and_grads``): the paper's
+    loss, and the labels' regression alone; the extra terms (``jacobian_weight``,
+    ``label_state_weight``) go through autograd."""
+    return not labelled or not (cfg.jacobian_weight or cfg.label_state_weight)
+
+
 def train(model: Corrector, tr: Split, cfg: FitConfig, on_epoch=None, epochs: int | None = None) -> list[dict]:
     """Adam on the variant's loss; batches are index slices of tensors held whole.
 
@@ -363,14 +383,18 @@ def _train(model: Corrector, tr: Split, cfg: FitConfig, on_epoch, epochs: int,
         rows = {k: t for k in ("x", "residual", "jacobian", "label") if (t := getattr(whole, k)) is not None}
         buffers = {k: t.new_empty((b, *t.shape[1:])) for k, t in rows.items()}
         total, index = torch.zeros((), device=dev), torch.empty(b, dtype=torch.long, device=dev)
+        closed_form = written_out(cfg, tr.label is not None)
 
         def step(idx: torch.Tensor) -> None:
             """One Adam step on rows ``idx`` (at most a batch); adds the batch's summed loss to ``total``."""
             m = len(idx)
             batch = replace(whole, **{k: torch.index_select(t, 0, idx, out=buffers[k][:m]) for k, t in rows.items()})
-            loss = flat.step(batch.x, lambda out: _batch_loss(
-                out[0], out[1].view(m, net.n_out, net.n_action) if len(out) > 1 else None, batch, cfg,
-                report_fit=False)[0])
+            if closed_form:
+                loss = flat.step(batch.x, grads_of=lambda out: _batch_loss_and_grads(out, batch, cfg, net))
+            else:
+                loss = flat.step(batch.x, lambda out: _batch_loss(
+                    out[0], out[1].view(m, net.n_out, net.n_action) if len(out) > 1 else None, batch, cfg,
+                    report_fit=False)[0])
             opt.step()
             flat.sync()
             total.add_(loss, alpha=m)
