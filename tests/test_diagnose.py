@@ -818,8 +818,9 @@ def _one_row_late(rows: dict) -> dict:
 
 def test_actions_logged_one_row_late_are_named_and_shifted_back_on_import(tmp_path, acn):
     """The model predicts each step far better with the next row's action: the diagnosis names the
-    pairing (no physical effect undoes it) and says to fix the data; imported with --shift-actions 1,
-    and in the consistent log, there is nothing to name."""
+    pairing (no physical effect undoes it) and says to fix the data, also where the robot has a
+    latency of its own shorter than the control period; imported with --shift-actions 1, and in
+    the consistent logs, there is nothing to name."""
     import pyarrow as pa
     import pyarrow.csv as pacsv
     from robot_log import simulate
@@ -837,12 +838,17 @@ def test_actions_logged_one_row_late_are_named_and_shifted_back_on_import(tmp_pa
     assert [f.check for f in d.data_checks] == ["action_row"] and "--shift-actions 1" in d.data_checks[0].message
     assert "fix the data first" in d.reason
     model = Model.parse("mujoco")
-    for name in ("log", "fixed"):
+    # A robot with a 15 ms latency of its own, logged late: each action acts 5 ms before its row.
+    rows = simulate(LogSpec(seconds=4.0, episodes=2, seed=31, noise=1.0, latency_steps=15))
+    pacsv.write_csv(pa.table(rows), str(tmp_path / "log15.csv"))
+    pacsv.write_csv(pa.table(_one_row_late(rows)), str(tmp_path / "late15.csv"))
+    for name in ("log15", "late15"):
+        assert acn("import", str(tmp_path / f"{name}.csv"), "--out", str(tmp_path / name), *control).returncode == 0
+    for name, named in (("log", False), ("fixed", False), ("log15", False), ("late15", True)):
         problem = prepare(load_measurements(tmp_path / name), model, FAST)
         judge = problem.sample(problem.held_rows, FAST.judge_rows, salt=4)
         residual = problem.residual_of(model.sim_config(problem.control), judge)
-        ok = np.isfinite(residual).all(1)
-        assert action_row(problem, model, judge[ok], residual[ok]) is None, name
+        assert (action_row(problem, model, judge, residual) is not None) == named, name
 
 
 def test_a_log_simulated_at_a_coarser_physics_rate_is_named_and_right_when_imported_at_it(tmp_path, acn):
