@@ -363,8 +363,9 @@ def velocity_lag(episodes: list[Episode], dt: float, suspect: set[str] = frozens
         if np.isfinite(tau) and abs(tau) > LAG_MIN and abs(z) > LAG_Z:
             out.append(Finding("velocity_lag", GROUPS[group], f"the readings of {_names(GROUPS[group])} "
                                f"{'lag' if tau > 0 else 'lead'} the motion of their positions by {1e3 * abs(tau):.0f} "
-                               f"ms (z {abs(z):.0f}): low-pass filtered, read at another time than the positions, or differenced from them (a backward difference lags half a step)? "
-                               "the diagnosis derives them from the positions instead"))
+                               f"ms (z {abs(z):.0f}): low-pass filtered, read at another time than the positions, or "
+                               "differenced from them (a backward difference lags half a step)? the diagnosis derives "
+                               "them from the positions instead"))
     return out
 
 
