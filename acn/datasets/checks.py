@@ -370,13 +370,32 @@ def velocity_lag(episodes: list[Episode], dt: float, suspect: set[str] = frozens
 
 
 # ----- pose ------------------------------------------------------------------------------------
+def _upright(episodes: list[Episode]) -> np.ndarray:
+    """(N,) the episodes' rows whose trunk does not meet the fall rule
+    (``acn.toolkit.collector.FALL_RULE``; an unlogged height or tilt counts as upright); every row
+    where most episodes do not start upright by it (a height in other units or from another zero,
+    or angles in degrees, would read as fallen) or fewer than ``MIN_ROWS`` rows are."""
+    from acn.toolkit.collector import FALL_HEIGHT, FALL_TILT_SQ
+
+    def up(s: np.ndarray) -> np.ndarray:
+        z, roll, pitch = (s[:, STATE_NAMES.index(n)] for n in ("base_pos_z", "base_roll", "base_pitch"))
+        with np.errstate(invalid="ignore"):
+            return ~((z < FALL_HEIGHT) | (roll * roll + pitch * pitch >= FALL_TILT_SQ))
+
+    rows = np.concatenate([up(s) for s, _ in episodes])
+    starts = np.array([up(s[:1])[0] for s, _ in episodes if len(s)])
+    trusted = starts.mean() > 0.5 and rows.sum() >= MIN_ROWS
+    return rows if trusted else np.ones(len(rows), dtype=bool)
+
+
 def pose(episodes: list[Episode]) -> list[Finding]:
-    """Joint angles in the A1's ranges, the trunk upright and its height where episodes start."""
+    """Joint angles in the A1's ranges (while the robot is upright: one that collapses folds its
+    legs past the URDF's limits), the trunk upright and its height where episodes start."""
     from acn.toolkit.robot import STANDING_HEIGHT, joint_limits
 
     states = np.concatenate([s for s, _ in episodes])
     out: list[Finding] = []
-    q = states[:, SLICES["joint_pos"]]
+    q = states[_upright(episodes), SLICES["joint_pos"]]
     limits = joint_limits()
     problems = []
     for i, j in enumerate(JOINT_NAMES):
@@ -392,6 +411,10 @@ def pose(episodes: list[Episode]) -> list[Finding]:
             problems.append((f"{j}_pos", "deg", 'degrees? map it with "scale": 0.0174533', med))
         elif inside(-v) >= 0.95:
             problems.append((f"{j}_pos", "sign", 'the opposite sign convention? map it with "scale": -1', med))
+        elif lo <= med <= hi and share < 0.5:  # a wrong zero moves every row; this moves some past a limit
+            problems.append((f"{j}_pos", "past", f"goes past the A1's limits in {share:.0%} of the rows while the "
+                             f"robot is upright (to {v[np.argmax(np.abs(v - med))]:.3g}): pressed past them "
+                             "(a collapse, a collision) or wrong rows? the model's joints stop at the limits", med))
         else:
             problems.append((f"{j}_pos", "range", f"outside the A1's range in {share:.0%} of rows: another zero? "
                              'map it with an "offset"', med))
@@ -572,8 +595,10 @@ DERIVED = ("velocity_lag",)  # checks whose channels the diagnosis derives from 
 
 
 def actions(episodes: list[Episode]) -> list[Finding]:
-    """Position actions are PD targets in rad: near the joint angles they drive."""
+    """Position actions are PD targets in rad: near the joint angles they drive (while the robot
+    is upright: a collapsed robot's joints lie far from its targets)."""
     gap = np.concatenate([a - s[:-1, SLICES["joint_pos"]] for s, a in episodes])
+    gap = gap[_upright([(s[:-1], a) for s, a in episodes])]
     problems = []
     for i, j in enumerate(JOINT_NAMES):
         g = gap[:, i][np.isfinite(gap[:, i])]
