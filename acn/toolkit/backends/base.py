@@ -34,6 +34,7 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
+from acn.errors import UserError
 from acn.toolkit import frames
 from acn.toolkit.actuation import Actuation
 from acn.toolkit.robot import GRAVITY, STANCE, STANDING_HEIGHT, ModelParams, per_joint
@@ -103,8 +104,6 @@ def physics_hz_for(control_hz: int, physics_hz: int | None = None) -> int:
     """The physics rate for a control rate: ``physics_hz`` where given (a multiple of the control
     rate, else a one-line error), otherwise the multiple of the control rate nearest ``PHYSICS_HZ``
     (1020 Hz at 60 Hz: PyBullet's 240 Hz logs are often controlled at 60 Hz)."""
-    from acn.errors import UserError
-
     if physics_hz is None:
         return control_hz * max(1, round(PHYSICS_HZ / control_hz))
     if physics_hz % control_hz:
