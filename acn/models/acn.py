@@ -132,7 +132,7 @@ def acn_loss_and_grad(delta_a: torch.Tensor, jacobian: torch.Tensor, residual: t
     """(acn_loss's total, d total / d delta_a, d total / d jacobian)."""
     err = torch.bmm(jacobian, delta_a.unsqueeze(-1)).squeeze(-1).sub_(residual)
     total = err.pow(2).mean() + lambda_l1 * delta_a.abs().sum() / len(delta_a)
-    l1 = torch.full((), lambda_l1, dtype=err.dtype)  # as the backward's g_total * lambda: a float32 scalar
+    l1 = torch.full((), lambda_l1, dtype=err.dtype, device=err.device)  # as the backward's g_total * lambda
     g_err = err.mul_(2.0 / err.numel())
     return total, _delta_gradient(delta_a, jacobian, g_err, l1), g_err.unsqueeze(-1) * delta_a.unsqueeze(1)
 
