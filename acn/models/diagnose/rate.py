@@ -15,11 +15,13 @@ was not found, while imported with ``--physics-hz 200`` they came out ``none`` a
 rates (the control rate times ``RATES``, 100 Hz or more) and names the rate whose one-step error is at most
 ``RATE_SHARE`` of the model's own, clearly lower row by row. Measured (noisy logs, 50 Hz): the
 chattering 200 Hz logs' one-step error at 200 Hz is 0.14 (nominal) and 0.20 (latency) of the
-1 kHz model's (0.14 and 0.24 at a 100 Hz control rate); for 1 kHz logs (nominal, damping,
-latency, kd x 0.5, armature, strength, backlash; noisy or not) every coarser rate is worse (500 Hz:
-0.99-1.19 of it, 200 Hz: 2.3-846); so are 200 Hz logs with legged_gym's gains (200 Hz: 1.14-1.25
-noisy; 0.29-1.5 noise-free, not named: not clearly lower row by row), PyBullet's and MuJoCo's
-sides of ``make demo``'s paired trot and its hidden-effect log. A chattering log whose main gap
+1 kHz model's (0.14 and 0.24 at a 100 Hz control rate); for 1 kHz logs (noisy: nominal, damping,
+latency, kp x 0.7, kd x 0.5, armature, strength, backlash; noise-free: five of them) no coarser
+rate is more than 2 % better (500 Hz: 0.99-1.19 of it, 200 Hz: 2.3-846); 200 Hz logs with
+legged_gym's gains read 1.14-1.25 at 200 Hz noisy and 0.29-1.5 noise-free (not clearly lower row
+by row: not named). None is named on those, on PyBullet's and MuJoCo's sides of ``make demo``'s
+paired trot and its hidden-effect log, or on ``benchmarks/diagnose_cases.py``'s 25 standard and
+other logs (4 x 10 s, with and without ``--feedback 1``). A chattering log whose main gap
 is another effect (joint damping 0.5: 1.26) is not named either; the diagnosis then names the
 effect, its value biased by the step (0.34 instead of 0.5).
 """
