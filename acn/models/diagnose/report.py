@@ -289,8 +289,9 @@ def write_html(d: Diagnosis, path: str | Path) -> Path:
                     for a in d.added)
     chains = "".join(f"<li>started with {c.start}: <b>{html.escape(c.label)}</b>"
                      f"{' (kept)' if c.kept else ''}: {html.escape(c.why)}</li>" for c in d.chains) if len(d.chains) > 1 else ""
-    checks_html = ("<p><b>Data checks</b> (the measurements' own consistency, before any model; a model compared "
-                   "with them explains these as physics):</p><ul>"
+    checks_html = ("<p><b>Data checks</b> (the measurements' own consistency, before any model, and with the "
+                   "model whether each state has the action that drove it and the log the model's time step; a "
+                   "model compared with them explains these as physics):</p><ul>"
                    + "".join(f"<li>{html.escape(f.message)}</li>" for f in d.data_checks) + "</ul>") if d.data_checks else ""
     body = f"""<!doctype html><html><head><meta charset="utf-8"><title>acn-diagnose: {html.escape(d.measurements)}</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
