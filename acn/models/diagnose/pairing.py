@@ -53,8 +53,7 @@ def action_row(problem: Problem, model: Model, rows: np.ndarray, residual: np.nd
         """Per row: the one step's mean squared error with the actions of ``shift`` rows later,
         delayed by ``quarters`` quarters of the control period."""
         m = model.with_effect(latency, {"seconds": quarters * period / 4})
-        return np.mean(problem.residual(problem.predict(m.sim_config(problem.control), rows, shift=shift), rows) ** 2,
-                       axis=1)
+        return np.mean(problem.residual_of(m.sim_config(problem.control), rows, shift=shift) ** 2, axis=1)
 
     # delays -T, -3T/4, ..., -T/4 are the next row's actions at 0 .. 3T/4; 0 .. T are the row's own
     before = [error(1, k) for k in range(4)]

@@ -133,8 +133,8 @@ class Problem:
         d = state_difference(self.measured(rows, horizon), predicted)[:, self.channels]
         return d / self.scale[horizon]
 
-    def residual_of(self, configs, rows: np.ndarray, horizon: int = 1, model_of_row=None) -> np.ndarray:
-        return self.residual(self.predict(configs, rows, horizon, model_of_row), rows, horizon)
+    def residual_of(self, configs, rows: np.ndarray, horizon: int = 1, model_of_row=None, shift: int = 0) -> np.ndarray:
+        return self.residual(self.predict(configs, rows, horizon, model_of_row, shift=shift), rows, horizon)
 
     def rollout_starts(self, horizon: int, count: int) -> np.ndarray:
         """Held-out rows that start ``horizon`` consecutive steps (at most ``count``; the same
