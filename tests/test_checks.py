@@ -7,6 +7,7 @@ logs from other code are: each corruption must be named, a consistent log must g
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pyarrow as pa
@@ -15,7 +16,7 @@ import pytest
 from robot_log import LogSpec, simulate
 from test_import import CONTROL
 
-from acn.datasets.checks import check
+from acn.datasets.checks import LAG_Z, check, lag
 from acn.datasets.measurements import load_measurements
 from acn.toolkit.robot import STANCE
 from acn.toolkit.rotations import rpy_to_matrices, rpy_to_quat
@@ -134,6 +135,23 @@ def test_consistent_logs_have_no_findings(rows):
     assert check(_episodes(turned), 1 / 50) == []
     fast = simulate(LogSpec(seconds=1.0, episodes=1, seed=8, noise=3.0, control_hz=200))
     assert check(_episodes(fast), 1 / 200) == []
+
+
+def test_a_lag_is_read_from_the_integrated_readings_not_from_the_pd_response():
+    """Under twice the attitude feedback at 200 Hz the joints move fast between rows; the lag
+    estimate the check used before (the central rate of the angles over four rows against the
+    reading) read 12.9 ms on this consistent log and named it. Integrating the readings over the
+    span reads ~1 ms, and a real 10 ms low-pass filter 10 ms."""
+    spec = LogSpec(seconds=5.0, episodes=2, seed=100, noise=1.0, feedback=2.0, control_hz=200)
+    consistent = _episodes(simulate(spec))
+    for group in ("joint_vel", "base_angvel"):
+        tau, _ = lag(consistent, 1 / 200, group)
+        assert abs(tau) < 0.002, (group, tau)
+    assert "velocity_lag" not in {f.check for f in check(consistent, 1 / 200)}
+    filtered = _episodes(simulate(replace(spec, velocity_filter=0.01)))
+    tau, z = lag(filtered, 1 / 200, "joint_vel")
+    assert abs(tau - 0.01) < 0.001 and z > LAG_Z, (tau, z)
+    assert [f.channels for f in check(filtered, 1 / 200) if f.check == "velocity_lag"] == [GROUPS["joint_vel"]]
 
 
 def test_a_robot_that_falls_onto_its_back_is_not_a_convention_error():

@@ -54,9 +54,12 @@ STANCE_MEDIAN, STANCE_SPREAD = 0.015, 0.04  # m
 REPEAT_RUN = 3         # at most this many rows equal to the one before count as repeated readings
 REPEAT_SHARE = 0.01    # a sensor group with more repeated rows than this is a finding
 MOVING = 1e-5          # SI units: a signal that changes less than this after a run is at rest (float32 steps)
-LAG_MIN = 0.004        # s: a velocity lagging (or leading) its position's rate by more is a finding (consistent
-                       # logs: -0.6..1.8 ms at 50-200 Hz, noise 0-3x, two gaits, acn-collect: 0.6..1.9 ms; README)
-LAG_BINS = 8           # bins of action changes the lag regression takes out (``lag``)
+LAG_MIN = 0.004        # s: a velocity lagging (or leading) its position's motion by more is a finding (consistent
+                       # logs: -3.2..4.5 ms under twice the attitude feedback at 3x noise, 0..1.9 without it;
+                       # acn-collect: 1.6..1.8 ms; README)
+LAG_SPAN = 0.04        # s: the readings are integrated over about this span (whole rows, at least one; ``lag``)
+LAG_BACK = 0.04        # s: action changes this far before a span can still bend the motion inside it (a latency)
+LAG_BINS = 8           # bins of those action changes the lag regression takes out
 LAG_Z = 8.0            # ... where the lag is this many standard errors from zero
 LEG_ORDER_GAIN = 0.5   # another leg order is named where its stance feet spread at most this share of the log's
 LEG_ORDER_FROM = 0.015 # m: other orders are tried where the log's spreads the stance feet more (consistent: 0.6-2.2)
@@ -286,65 +289,67 @@ def velocities(episodes: list[Episode], dt: float, suspect: set[str] = frozenset
 
 def lag(episodes: list[Episode], dt: float, group: str) -> tuple[float, float]:
     """(lag in s, its z) of ``group``'s velocity readings (joint_vel or base_angvel) behind the
-    motion of their positions. With h about half ``WINDOW_S``, the central rate
-    r_t = (p_{t+h} - p_{t-h}) / 2h; a reading low-passed with time constant tau (or taken tau
-    earlier) is v_t = r_t - tau a_t to first order, so tau is the least-squares slope of
-    r_t - v_t on the acceleration a_t. a_t is taken over twice the span,
-    (p_{t+2h} - 2 p_t + p_{t-2h}) / 4h^2: it shares no reading with r_t - v_t, and its noise is
-    16 times smaller than over h (noise in a_t only shrinks tau towards 0).
-    The action changes around t are regressors too: each new action bends the motion at the row
-    it is logged on (or a latency after it), and the samples sit at those bends, so the central
-    rate differs from the reading by a step that is not lag (without them consistent logs read
-    2-4 ms at 50 Hz, and 6-7 ms with a 15-25 ms latency under a feedback controller whose
-    actions carry sensor noise). ``LAG_BINS`` bins of the changes over the actions whose bend
-    can fall inside the span (one more period back for a latency), a joint's own actions for a
-    joint, every joint's for the trunk. One regression per channel; tau is their
-    inverse-variance mean. (nan, 0) where too few rows."""
-    k = max(1, round(WINDOW_S / dt / 2))
-    h = k * dt
-    lo, hi = -(2 * k + 2), 2 * k  # action changes u_{l} - u_{l-1} for t + lo <= l < t + hi
+    motion of their positions, from the readings integrated over a span of k rows (about
+    ``LAG_SPAN``): a reading low-passed with time constant tau obeys v = v_read + tau dv_read/dt,
+    so over [t, t + k]
+
+        p_{t+k} - p_t - trapezoid(v_read_t .. v_read_{t+k}) = tau (v_read_{t+k} - v_read_t)
+
+    exactly but for the trapezoid's error (a reading taken tau earlier obeys it to first
+    order), and tau is the least-squares slope. The gyroscope's span is the Euler angles' change
+    turned into body rates at its middle. Further regressors: the action changes whose bend can
+    fall inside the span (``LAG_BACK`` back for a latency; every joint's, since a leg's motion
+    and the trunk's follow every joint's command), in ``LAG_BINS`` bins: each new action bends
+    the motion at its row (or a latency after it) and the trapezoid misses the bend.
+    Integrated over whole rows, the readings' noise adds no bias, the feedback through actions
+    that carry it little, and neither does the PD's own response within a span much: a
+    derivative of the positions over several rows instead (the central rate against the reading,
+    on the acceleration) read 4-8 ms under twice the attitude feedback at 50 Hz, 16 ms at 200
+    Hz, and a 10 ms filter as 11-18 ms (README). One regression per channel; tau is their
+    inverse-variance mean, its variance taken k times larger (neighbouring spans share k - 1
+    rows). (nan, 0) where too few rows."""
+    k = max(1, round(LAG_SPAN / dt))
+    span = k * dt
+    lo, hi = -int(np.ceil(LAG_BACK / dt - 1e-9)), k  # action changes u_l - u_{l-1} for t + lo <= l < t + hi
     edges = np.unique(np.round(np.linspace(lo, hi, min(LAG_BINS, hi - lo) + 1)).astype(int))
+    weights = np.ones(k + 1)
+    weights[[0, -1]] = 0.5                            # the trapezoid over k rows
     xs, ys, us = [], [], []
     for s, u in episodes:
-        t = np.arange(-lo + 1, len(s) - 2 * k)
+        t = np.arange(-lo + 1, len(s) - k)
         if len(t) < 1:
             continue
+        v = s[:, SLICES[group]]
         if group == "joint_vel":
             q = s[:, SLICES["joint_pos"]]
-            rate = (q[t + k] - q[t - k]) / (2 * h)
-            acc = (q[t + 2 * k] - 2 * q[t] + q[t - 2 * k]) / (2 * h) ** 2
-        else:  # the gyroscope: body rates from the Euler angles' rates
+            moved = q[t + k] - q[t]
+        else:  # the gyroscope: the Euler angles' change as body rates at the span's middle
             rpy = s[:, SLICES["base_rpy"]]
-
-            def body(a, b, span):  # body rate over rows [a, b], at its middle
-                d = wrap_angle(rpy[b] - rpy[a])
-                return rpy_rate_to_body(rpy[a] + d / 2, d / span)
-            rate = body(t - k, t + k, 2 * h)
-            acc = (body(t, t + 2 * k, 2 * h) - body(t - 2 * k, t, 2 * h)) / (2 * h)
-        xs.append(acc)
-        ys.append(rate - s[t][:, SLICES[group]])
+            d = wrap_angle(rpy[t + k] - rpy[t])
+            moved = rpy_rate_to_body(rpy[t] + d / 2, d / span) * span
+        ys.append(moved - dt * sum(w * v[t + j] for j, w in enumerate(weights)))
+        xs.append(v[t + k] - v[t])
         # the changes within each bin sum to the difference of the actions at its edges
         us.append(np.stack([u[t + e1 - 1] - u[t + e0 - 1] for e0, e1 in zip(edges[:-1], edges[1:])], axis=1))
     if not xs:
         return float("nan"), 0.0
     x, y, du = np.concatenate(xs), np.concatenate(ys), np.concatenate(us)  # (n, c), (n, c), (n, bins, 12)
     ok = np.isfinite(x).all(1) & np.isfinite(y).all(1) & np.isfinite(du).all((1, 2))
-    x, y, du = x[ok], y[ok], du[ok]
-    if len(x) < MIN_ROWS:
+    x, y, du = x[ok], y[ok], du[ok].reshape(int(ok.sum()), -1)
+    if len(x) < MIN_ROWS + du.shape[1]:
         return float("nan"), 0.0
-    taus, weights = [], []
+    taus, inverse_var = [], []
     for c in range(y.shape[1]):
-        own = du[:, :, c] if group == "joint_vel" else du.reshape(len(du), -1)
-        design = np.column_stack([x[:, c], own])
+        design = np.column_stack([x[:, c], du])
         coef, *_ = np.linalg.lstsq(design, y[:, c], rcond=None)
         resid = y[:, c] - design @ coef
-        var = np.linalg.pinv(design.T @ design)[0, 0] * (resid @ resid) / max(len(resid) - design.shape[1], 1)
+        var = k * np.linalg.pinv(design.T @ design)[0, 0] * (resid @ resid) / max(len(resid) - design.shape[1], 1)
         if var > 0:
             taus.append(coef[0])
-            weights.append(1.0 / var)
+            inverse_var.append(1.0 / var)
     if not taus:
         return float("nan"), 0.0
-    w = np.array(weights)
+    w = np.array(inverse_var)
     tau, se = float(np.dot(w, taus) / w.sum()), float(1.0 / np.sqrt(w.sum()))
     return tau, tau / se
 
