@@ -335,7 +335,7 @@ def lag(episodes: list[Episode], dt: float, group: str) -> tuple[float, float]:
         return float("nan"), 0.0
     x, y, du = np.concatenate(xs), np.concatenate(ys), np.concatenate(us)  # (n, c), (n, c), (n, bins, 12)
     ok = np.isfinite(x).all(1) & np.isfinite(y).all(1) & np.isfinite(du).all((1, 2))
-    x, y, du = x[ok], y[ok], du[ok].reshape(int(ok.sum()), -1)
+    x, y, du = x[ok], y[ok], du[ok].reshape(int(ok.sum()), du.shape[1] * du.shape[2])
     if len(x) < MIN_ROWS + du.shape[1]:
         return float("nan"), 0.0
     taus, inverse_var = [], []
