@@ -57,7 +57,6 @@ MOVING = 1e-5          # SI units: a signal that changes less than this after a 
 LAG_MIN = 0.004        # s: a velocity lagging (or leading) its position's motion by more is a finding (consistent
                        # logs: -3.2..4.5 ms under twice the attitude feedback at 3x noise, 0..1.9 without it;
                        # acn-collect: 1.6..1.8 ms; README)
-LAG_SPAN = 0.04        # s: the readings are integrated over about this span (whole rows, at least one; ``lag``)
 LAG_BACK = 0.04        # s: action changes this far before a span can still bend the motion inside it (a latency)
 LAG_BINS = 8           # bins of those action changes the lag regression takes out
 LAG_Z = 8.0            # ... where the lag is this many standard errors from zero
@@ -154,28 +153,47 @@ def repeated_transitions(m: Measurements, groups=SENSOR_GROUPS) -> tuple[np.ndar
 
 
 # ----- velocities against the rate of change of positions -------------------------------------
+def _window(s: np.ndarray, k: int, T: float, logged: slice, position, rotate: bool = False):
+    """For each window [t, t + k] of one episode's states ``s`` (t = 0 .. n - k - 1; T = k control
+    periods, s): (the logged velocity averaged over it (trapezoid), the rate of change of the
+    position over it). ``position(a, b, T)`` gives the rate from the states at both ends; with
+    ``rotate`` the logged (body-frame) vectors are rotated into the world frame before averaging."""
+    v = s[:, logged]
+    if rotate:
+        v = np.einsum("nij,nj->ni", rpy_to_matrices(s[:, SLICES["base_rpy"]]), v)
+    c = np.vstack([np.zeros((1, v.shape[1])), np.cumsum(v, axis=0)])
+    total = c[k + 1:] - c[:-k - 1]                      # sum of v_t .. v_{t+k}
+    return (total - 0.5 * v[:-k] - 0.5 * v[k:]) / k, position(s[:-k], s[k:], T)
+
+
 def _windows(episodes: list[Episode], dt: float, logged: slice, position, rotate: bool = False):
-    """(logged velocity averaged over each window (trapezoid), rate of change of the position
-    over it) for every window of k control steps.
-    ``position(a, b, T)`` gives the rate from the states at both ends; with ``rotate`` the logged
-    (body-frame) vectors are rotated into the world frame before averaging."""
+    """``_window`` for every window of k control steps (about ``WINDOW_S``) of every episode,
+    rows where both are finite, or None where fewer than ``MIN_ROWS``."""
     k = max(1, round(WINDOW_S / dt))
     xs, ys = [], []
     for s, _ in episodes:
         if len(s) <= k:
             continue
-        v = s[:, logged]
-        if rotate:
-            v = np.einsum("nij,nj->ni", rpy_to_matrices(s[:, SLICES["base_rpy"]]), v)
-        c = np.vstack([np.zeros((1, v.shape[1])), np.cumsum(v, axis=0)])
-        total = c[k + 1:] - c[:-k - 1]                      # sum of v_t .. v_{t+k}
-        xs.append((total - 0.5 * v[:-k] - 0.5 * v[k:]) / k)
-        ys.append(position(s[:-k], s[k:], k * dt))
+        x, y = _window(s, k, k * dt, logged, position, rotate)
+        xs.append(x)
+        ys.append(y)
     if not xs:
         return None
     x, y = np.concatenate(xs), np.concatenate(ys)
     ok = np.isfinite(x).all(1) & np.isfinite(y).all(1)
     return (x[ok], y[ok]) if ok.sum() >= MIN_ROWS else None
+
+
+def _joint_rate(a: np.ndarray, b: np.ndarray, T: float) -> np.ndarray:
+    """The joint angles' rate of change between states ``a`` and ``b``, T s apart (rad/s)."""
+    return (b - a)[:, SLICES["joint_pos"]] / T
+
+
+def _body_rate(a: np.ndarray, b: np.ndarray, T: float) -> np.ndarray:
+    """The trunk's angular velocity in its own frame from the Euler angles of states ``a`` and
+    ``b``, T s apart, taken at the middle (rad/s)."""
+    d = wrap_angle((b - a)[:, SLICES["base_rpy"]])
+    return rpy_rate_to_body(a[:, SLICES["base_rpy"]] + d / 2, d / T)
 
 
 def _scale(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
@@ -226,7 +244,7 @@ def velocities(episodes: list[Episode], dt: float, suspect: set[str] = frozenset
     """Velocities against the rate of change of positions (``suspect`` positions: skipped)."""
     out: list[Finding] = []
     # Joints: each velocity against the rate of every joint angle (a mixed-up column follows another).
-    w = _windows(episodes, dt, SLICES["joint_vel"], lambda a, b, T: (b - a)[:, SLICES["joint_pos"]] / T)
+    w = _windows(episodes, dt, SLICES["joint_vel"], _joint_rate)
     if w is not None:
         x, y = w
         problems, unrelated, mixed = [], [], []
@@ -252,19 +270,15 @@ def velocities(episodes: list[Episode], dt: float, suspect: set[str] = frozenset
     def world_rate(a, b, T):
         return (b - a)[:, SLICES["base_pos"]] / T
 
-    def body_angular(a, b, T):
-        d = wrap_angle((b - a)[:, rpy])
-        return rpy_rate_to_body(a[:, rpy] + d / 2, d / T)
-
     def world_angular(a, b, T):
-        return np.einsum("nij,nj->ni", rpy_to_matrices(a[:, rpy] + wrap_angle((b - a)[:, rpy]) / 2), body_angular(a, b, T))
+        return np.einsum("nij,nj->ni", rpy_to_matrices(a[:, rpy] + wrap_angle((b - a)[:, rpy]) / 2), _body_rate(a, b, T))
 
     for group, positions, body, world in (
             # linear: the position's rate is in the world frame; the logged body vectors are rotated into it
             ("base_linvel", ("base_pos", "base_rpy"), _windows(episodes, dt, SLICES["base_linvel"], world_rate, rotate=True),
              _windows(episodes, dt, SLICES["base_linvel"], world_rate)),
             # angular: the Euler angles' rate gives the body-frame rate; the world one rotates it
-            ("base_angvel", ("base_rpy",), _windows(episodes, dt, SLICES["base_angvel"], body_angular),
+            ("base_angvel", ("base_rpy",), _windows(episodes, dt, SLICES["base_angvel"], _body_rate),
              _windows(episodes, dt, SLICES["base_angvel"], world_angular))):
         if body is None or world is None or any(suspect & set(GROUPS[g]) for g in positions):
             continue
@@ -290,7 +304,7 @@ def velocities(episodes: list[Episode], dt: float, suspect: set[str] = frozenset
 def lag(episodes: list[Episode], dt: float, group: str) -> tuple[float, float]:
     """(lag in s, its z) of ``group``'s velocity readings (joint_vel or base_angvel) behind the
     motion of their positions, from the readings integrated over a span of k rows (about
-    ``LAG_SPAN``): a reading low-passed with time constant tau obeys v = v_read + tau dv_read/dt,
+    ``WINDOW_S``, the windows of ``velocities``): a reading low-passed with time constant tau obeys v = v_read + tau dv_read/dt,
     so over [t, t + k]
 
         p_{t+k} - p_t - trapezoid(v_read_t .. v_read_{t+k}) = tau (v_read_{t+k} - v_read_t)
@@ -308,26 +322,19 @@ def lag(episodes: list[Episode], dt: float, group: str) -> tuple[float, float]:
     Hz, and a 10 ms filter as 11-18 ms (README). One regression per channel; tau is their
     inverse-variance mean, its variance taken k times larger (neighbouring spans share k - 1
     rows). (nan, 0) where too few rows."""
-    k = max(1, round(LAG_SPAN / dt))
+    k = max(1, round(WINDOW_S / dt))                  # the windows of ``velocities``
     span = k * dt
     lo, hi = -int(np.ceil(LAG_BACK / dt - 1e-9)), k  # action changes u_l - u_{l-1} for t + lo <= l < t + hi
     edges = np.unique(np.round(np.linspace(lo, hi, min(LAG_BINS, hi - lo) + 1)).astype(int))
-    weights = np.ones(k + 1)
-    weights[[0, -1]] = 0.5                            # the trapezoid over k rows
+    position = _joint_rate if group == "joint_vel" else _body_rate
     xs, ys, us = [], [], []
     for s, u in episodes:
         t = np.arange(-lo + 1, len(s) - k)
         if len(t) < 1:
             continue
+        mean, rate = _window(s, k, span, SLICES[group], position)
         v = s[:, SLICES[group]]
-        if group == "joint_vel":
-            q = s[:, SLICES["joint_pos"]]
-            moved = q[t + k] - q[t]
-        else:  # the gyroscope: the Euler angles' change as body rates at the span's middle
-            rpy = s[:, SLICES["base_rpy"]]
-            d = wrap_angle(rpy[t + k] - rpy[t])
-            moved = rpy_rate_to_body(rpy[t] + d / 2, d / span) * span
-        ys.append(moved - dt * sum(w * v[t + j] for j, w in enumerate(weights)))
+        ys.append(span * (rate[t] - mean[t]))           # the position's change - the readings' trapezoid
         xs.append(v[t + k] - v[t])
         # the changes within each bin sum to the difference of the actions at its edges
         us.append(np.stack([u[t + e1 - 1] - u[t + e0 - 1] for e0, e1 in zip(edges[:-1], edges[1:])], axis=1))
