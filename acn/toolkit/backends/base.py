@@ -60,6 +60,10 @@ class SimulationDiverged(RuntimeError):
     """The simulator produced a non-finite or physically absurd state."""
 
 
+MAX_PHYSICS_DT = 0.01      # s, the coarsest physics step a backend takes
+PHYSICS_HZ = 1000          # Hz, the physics rate a model steps at unless told otherwise
+
+
 @dataclass
 class SimConfig:
     """How a simulated A1 is built and driven. Both backends read the same config."""
@@ -95,11 +99,6 @@ def pd_torque(target: np.ndarray, q: np.ndarray, qd: np.ndarray, cfg: SimConfig)
     return np.clip(per_joint(cfg.kp) * (target - q) - per_joint(cfg.kd) * qd, -cfg.torque_limit, cfg.torque_limit)
 
 
-# A state is "absurd" (the simulator blew up) beyond these bounds.
-MAX_PHYSICS_DT = 0.01      # s, the coarsest physics step a backend takes
-PHYSICS_HZ = 1000          # Hz, the physics rate a model steps at unless told otherwise
-
-
 def physics_hz_for(control_hz: int, physics_hz: int | None = None) -> int:
     """The physics rate for a control rate: ``physics_hz`` where given (a multiple of the control
     rate, else a one-line error), otherwise the multiple of the control rate nearest ``PHYSICS_HZ``
@@ -109,6 +108,9 @@ def physics_hz_for(control_hz: int, physics_hz: int | None = None) -> int:
     if physics_hz % control_hz:
         raise UserError(f"--physics-hz ({physics_hz}) must be a multiple of --control-hz ({control_hz})")
     return physics_hz
+
+
+# A state is "absurd" (the simulator blew up) beyond these bounds.
 MAX_ABS_LINVEL = 50.0      # m/s
 MAX_ABS_JOINT_VEL = 500.0  # rad/s
 MAX_ABS_POSITION = 1e3     # m
