@@ -589,14 +589,12 @@ def import_main(argv: list[str] | None = None) -> int:
         print(f"read {r.rows} rows: {r.transitions} transitions in {r.episodes} episode(s); cut {r.cut_nonfinite} "
               f"row(s) with non-finite values, split at {r.time_breaks} wrong time step(s), dropped "
               f"{r.dropped_short} one-row segment(s)")
-        if r.folded:
+        if {"action_vel", "action_torque"} & set(r.folded):
             print(f"a hybrid command ({', '.join(r.folded)}): stored as the position targets that drive the PD the "
                   "same way, q_des + (kd dq_des + tau_ff) / kp")
         if {"action_kp", "action_kd"} & set(r.folded):
-            print("gains per row: the targets give the command's torque at each row's logged state, q + (tau + kd qd) "
-                  "/ kp with --kp, --kd (exact there; within the control period the model's PD stiffens with "
-                  "those gains, so effects that act through it, damping, friction, armature, latency, backlash, "
-                  "come out biased by 10-40 %)")
+            print("gains per row: stored with the actions (action.gains); the model's PD uses each row's gains "
+                  "(--kp, --kd are the gains the data checks assume)")
         if args.physics_hz is None and (hz := physics_hz_for(args.control_hz)) != PHYSICS_HZ:
             print(f"the model simulates it at {hz} Hz, the multiple of {args.control_hz} Hz nearest {PHYSICS_HZ} Hz "
                   "(--physics-hz sets it)")

@@ -9,6 +9,7 @@ from acn.toolkit import frames
 from acn.toolkit.backends import BACKENDS, SimConfig, SimulationDiverged, default_state, make_backend
 from acn.toolkit.collector import CollectConfig, initial_state
 from acn.toolkit.policies import Trot, make_policy, policy_action
+from acn.toolkit.robot import ModelParams
 from acn.toolkit.state import DYNAMIC_GROUPS, SLICES, STATE_DIM
 
 
@@ -148,6 +149,35 @@ def test_position_mode_torque_is_the_pd_law(name):
         s_joint_vel = s[SLICES["joint_vel"]]
         tau = sim.step(target)
         np.testing.assert_allclose(tau, np.clip(60.0 * 0.1 - 1.5 * s_joint_vel, -33.5, 33.5), atol=1e-5)
+
+
+@pytest.mark.parametrize("name", BACKENDS)
+def test_gains_sent_with_each_command_drive_the_pd(name):
+    """With ``gains_per_step`` an action is (targets, kp, kd): at rest the first physics step's
+    torque is kp_t (target - q) - kd_t qdot with the gains sent; sending the config's own gains
+    every step is the plain PD (same trajectory under latency, strength, offsets, gain scales)."""
+    kp_t = np.linspace(20.0, 90.0, 12)
+    with make_backend(name, SimConfig(substeps=1, gains_per_step=True)) as sim:
+        s = sim.reset()
+        target = s[SLICES["joint_pos"]] + 0.1
+        tau = sim.step(np.concatenate([target, kp_t, np.full(12, 2.0)]))
+        np.testing.assert_allclose(tau, np.clip(kp_t * 0.1 - 2.0 * s[SLICES["joint_vel"]], -33.5, 33.5), atol=1e-5)
+        with pytest.raises(ValueError, match=r"\(36,\)"):
+            sim.step(target)
+    params = ModelParams(latency=0.013, motor_strength=0.8, encoder_offset=0.02, kp_scale=0.7, kd_scale=1.3)
+    runs = []
+    for gains in (False, True):
+        with make_backend(name, SimConfig(params=params, gains_per_step=gains)) as sim:
+            s, trot, states = sim.reset(), Trot(), []
+            for k in range(15):
+                a = trot(s, 0.02 * k)
+                sim.step(np.concatenate([a, np.full(12, 60.0), np.full(12, 1.5)]) if gains else a)
+                s = sim.get_state()
+                states.append(s[:36])
+        runs.append(np.array(states))
+    np.testing.assert_allclose(runs[1], runs[0], atol=1e-8)
+    with pytest.raises(ValueError, match="position mode"):
+        SimConfig(action_mode="torque", gains_per_step=True).validate()
 
 
 @pytest.mark.parametrize("name", BACKENDS)

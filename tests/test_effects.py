@@ -92,18 +92,25 @@ def test_bad_model_files_are_one_line_errors(tmp_path, bad, message):
     assert "\n" not in str(e.value)
 
 
-@pytest.mark.parametrize("backend", ["mujoco", "pybullet"])
-def test_resimulation_reproduces_the_backend_step_by_step(backend):
-    """Batch re-simulation from recorded states (with latency history) equals stepping the backend."""
+@pytest.mark.parametrize("backend, gains, backlash", [("mujoco", False, 0.02), ("pybullet", False, 0.02),
+                                                     ("mujoco", True, 0.0), ("mujoco", True, 0.02),
+                                                     ("pybullet", True, 0.02)])
+def test_resimulation_reproduces_the_backend_step_by_step(backend, gains, backlash):
+    """Batch re-simulation from recorded states (with latency history) equals stepping the backend;
+    also with gains that change every step (``gains_per_step``: MuJoCo's three actuators per joint
+    without a dead band, the law in numpy with one)."""
     params = ModelParams(latency=0.027, encoder_offset=0.03, payload_mass=1.0, payload_com=[0.02, 0.0, 0.01],
-                         backlash=0.02, armature=0.01, base_frame_offset=[0.03, -0.02, 0.05, 0.02, -0.03, 0.04])
-    cfg = SimConfig(params=params)
+                         backlash=backlash, armature=0.01, kp_scale=0.8, kd_scale=1.2, motor_strength=0.9,
+                         base_frame_offset=[0.03, -0.02, 0.05, 0.02, -0.03, 0.04])
+    cfg = SimConfig(params=params, gains_per_step=gains)
     s0, trot = initial_state(CollectConfig(), 1), Trot()
     states, actions, nexts, efforts = [], [], [], []
     with make_backend(backend, cfg) as sim:
         s = sim.reset(s0)
         for k in range(12):
             a = trot(s, 0.02 * k)
+            if gains:  # stance and swing gains, alternating by leg pair
+                a = np.concatenate([a, 60.0 * (1.0 + 0.5 * np.sin(k + np.arange(12))), np.full(12, 1.5 + 0.1 * k)])
             efforts.append(sim.step(a))
             states.append(s)
             actions.append(a)

@@ -125,7 +125,7 @@ def from_measurements(m: Measurements) -> list[Finding]:
 
 def _episodes(m: Measurements) -> list[Episode]:
     """``m``'s runs of consecutive transitions as (states, actions)."""
-    return [(np.vstack([m.state[a:b], m.next_state[b - 1:b]]), m.action[a:b]) for a, b in _runs(m)]
+    return [(np.vstack([m.state[a:b], m.next_state[b - 1:b]]), m.targets[a:b]) for a, b in _runs(m)]
 
 
 def distrusted(m: Measurements) -> list[str]:

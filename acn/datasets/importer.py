@@ -15,8 +15,9 @@ converted. A map file renames and scales other columns onto these names:
 value > threshold, for a log of foot forces). Channels the log lacks are stored as NaN and listed in the
 metadata (``missing_channels``); joint positions and actions are the minimum. A hybrid
 (MIT-style) command, ``action_vel.<joint>`` (rad/s) and ``action_torque.<joint>`` (N m) beside the
-position target, is folded into the target that drives the PD law the same way (``_fold_hybrid``),
-and so are gains sent with each command (``action_kp.<joint>``, ``action_kd.<joint>``).
+position target, is folded into the target that drives the PD law the same way (``_fold_hybrid``).
+Gains sent with each command (``action_kp.<joint>``, ``action_kd.<joint>``) are stored with the
+actions (``action.gains``), and the model's PD uses them step by step (``gains_per_step``).
 
 Transitions: s_{t+1} is the next row of the same episode. A row with a non-finite value, or a
 time step that differs from the control period by more than ``dt_tolerance`` of it, ends a
@@ -48,7 +49,7 @@ from acn.toolkit.backends.base import joint_gains, physics_hz_for
 from acn.toolkit.collector import FALL_RULE, Episode, Trace, fallen
 from acn.toolkit.robot import ModelParams, per_joint
 from acn.toolkit.rotations import quat_to_rpy, rpy_to_matrices
-from acn.toolkit.state import ACTION_NAMES, FOOT_NAMES, GROUPS, SLICES, STATE_NAMES
+from acn.toolkit.state import ACTION_NAMES, FOOT_NAMES, GROUPS, NUM_JOINTS, SLICES, STATE_NAMES
 
 ACTION_COLUMNS = tuple(f"action.{j}" for j in ACTION_NAMES)
 EFFORT_COLUMNS = tuple(f"effort.{j}" for j in ACTION_NAMES)
@@ -312,6 +313,7 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
         "torque_limit": cfg.torque_limit, "model_params": ModelParams().as_json(), "policy": "log",
         "seed": None, "corrector": None, "state_names": list(STATE_NAMES), "action_names": list(ACTION_NAMES),
         "fall_rule": FALL_RULE, "missing_channels": missing, "effort_logged": has_effort,
+        "gains_per_step": action.shape[1] > NUM_JOINTS,
     }
     writer = DatasetWriter(out, fps=cfg.control_hz, paired=False, task=f"log {log.name}", acn_meta=meta,
                            overwrite=overwrite)
@@ -325,7 +327,7 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
                 dropped += 1
                 continue
             now, nxt = rows[:-1], rows[1:]
-            written.append((state[rows], action[now]))
+            written.append((state[rows], action[now, :NUM_JOINTS]))
             trace = Trace(state[now], action[now], effort[now], state[nxt],
                           np.array([_fallen(s) for s in state[nxt]], dtype=bool))
             writer.write(Episode(writer.num_episodes, timestamp[now] - timestamp[now[0]], trace, None, reason))
@@ -390,17 +392,14 @@ def _to_body_frame(state: np.ndarray, cfg: ImportConfig) -> np.ndarray:
 
 def _fold_hybrid(action: np.ndarray, cols: dict[str, np.ndarray], cfg: ImportConfig,
                  state: np.ndarray) -> tuple[np.ndarray, list[str]]:
-    """Position targets (N, 12) for the model's PD law (the imported kp, kd) from a hybrid command.
+    """Position targets for the model's PD law from a hybrid command, and which kinds
+    (``HYBRID_COLUMNS``) the log had (each kind all 12 joints or none).
 
-    With the model's gains: q_des + (kd dq_des + tau_ff) / kp, since kp (q_des - q) + kd (dq_des -
-    qd) + tau_ff equals kp (that - q) - kd qd before the torque limit, at every state. With gains
-    per row (kp_t, kd_t): the target at which the model's PD gives the command's torque at the
-    row's logged state (q_t, qd_t), q_t + (tau_t + kd qd_t) / kp with tau_t = kp_t (q_des - q_t) +
-    kd_t (dq_des - qd_t) + tau_ff, which is the fold above plus ((kp_t - kp) (q_des - q_t) +
-    (kd_t - kd) (dq_des - qd_t)) / kp: exact at the row's state, first order over the control
-    period (within it the model's PD stiffens with kp, kd where the robot's did with kp_t, kd_t).
-    Returns the targets and which kinds (``HYBRID_COLUMNS``) the log had; each kind is all 12
-    joints or none."""
+    The motor runs kp (q_des - q) + kd (dq_des - qd) + tau_ff, which equals kp (u - q) - kd qd
+    at every state for the target u = q_des + (kd dq_des + tau_ff) / kp. With the imported gains
+    the targets are (N, 12). With gains per row (``action_kp.*``, ``action_kd.*``; the other
+    one the imported gains) u uses each row's kp_t, kd_t, and the actions are (N, 36): u, kp_t,
+    kd_t, which the model's PD uses step by step (``SimConfig.gains_per_step``); exact as well."""
     extra = {}
     for kind, columns in HYBRID_COLUMNS.items():
         have = [c for c in columns if c in cols]
@@ -416,20 +415,21 @@ def _fold_hybrid(action: np.ndarray, cols: dict[str, np.ndarray], cfg: ImportCon
     if cfg.action_mode != "position":
         raise UserError(f"{kinds} columns complete a position target (q_des); with --action-mode "
                         f"{cfg.action_mode} the actions are already torques: leave them out")
-    kp, kd = per_joint(cfg.kp), per_joint(cfg.kd)
-    if not (kp > 0).all():
-        raise UserError(f"{kinds} columns are folded into the position targets through kp: every joint's "
-                        "--kp must be positive (the gains the controller uses most)")
-    dq_des = extra.get("action_vel", 0.0)
-    out = action + (kd * dq_des + extra.get("action_torque", 0.0)) / kp
-    if "action_kp" in extra:
-        out = out + (extra["action_kp"] - kp) * (action - state[:, SLICES["joint_pos"]]) / kp
-    if "action_kd" in extra:
-        qd = state[:, SLICES["joint_vel"]]
-        if not np.isfinite(qd).any():
-            raise UserError("action_kd.* columns are folded at each row's joint velocities: the log needs "
-                            f"{GROUPS['joint_vel'][0]}, ... (or map them with --map)")
-        out = out + (extra["action_kd"] - kd) * (dq_des - qd) / kp
+    n = len(action)
+    kp = np.broadcast_to(extra.get("action_kp", per_joint(cfg.kp)), (n, NUM_JOINTS))
+    kd = np.broadcast_to(extra.get("action_kd", per_joint(cfg.kd)), (n, NUM_JOINTS))
+    scheduled = "action_kp" in extra or "action_kd" in extra
+    finite = np.isfinite(kp).all(1) & np.isfinite(kd).all(1)  # rows with a non-finite gain are cut later
+    if not (kp[finite] > 0).all():
+        where = ("action_kp.* has a row with kp <= 0 (pure torque or damping commands cannot be stored as "
+                 "position targets)") if "action_kp" in extra else "every joint's --kp must be positive"
+        raise UserError(f"{kinds} columns are folded into the position targets through kp: {where}")
+    if (kd[finite] < 0).any():
+        raise UserError("action_kd.* has negative gains")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = action + (kd * extra.get("action_vel", 0.0) + extra.get("action_torque", 0.0)) / kp
+    if scheduled:
+        out = np.concatenate([out, kp, kd], axis=1)
     return out, list(extra)
 
 

@@ -38,7 +38,7 @@ class Measurements:
     """N transitions (float64); ``state`` and ``next_state`` hold NaN in missing channels."""
 
     state: np.ndarray        # (N, 43) s_t
-    action: np.ndarray       # (N, 12) a_t
+    action: np.ndarray       # (N, 12) a_t; (N, 36) with the gains sent with it (``SimConfig.gains_per_step``)
     next_state: np.ndarray   # (N, 43) s_{t+1}
     effort: np.ndarray       # (N, 12) applied joint torque, N m (NaN if not logged)
     episode: np.ndarray      # (N,) int, rows of one episode are consecutive control steps
@@ -51,6 +51,11 @@ class Measurements:
 
     def __len__(self) -> int:
         return len(self.state)
+
+    @property
+    def targets(self) -> np.ndarray:
+        """(N, 12) the joint targets (or torques) of the actions, without the gains sent with them."""
+        return self.action[:, :ACTION_DIM]
 
     @property
     def available(self) -> np.ndarray:
@@ -97,12 +102,12 @@ class Measurements:
                                   np.zeros(len(rows), int) if model is None else np.asarray(model))
 
     def previous_actions(self, rows: np.ndarray, count: int) -> np.ndarray:
-        """(len(rows), count, 12): the actions of the ``count`` steps before each row, oldest first.
+        """(len(rows), count, 12 or 36): the actions of the ``count`` steps before each row, oldest first.
 
         Before an episode's first row its first action is repeated. Call it on whole
         measurements (rows of an episode consecutive), not on a ``subset``.
         """
-        out = np.empty((len(rows), count, ACTION_DIM))
+        out = np.empty((len(rows), count, self.action.shape[1]))
         for j in range(count):  # j = 0 is the oldest: ``count`` steps back
             back = count - j
             src = np.maximum(rows - np.minimum(self.frame[rows], back), 0)  # clamped to the episode's start
@@ -129,9 +134,16 @@ def load_measurements(path: str | Path, side: str = "source") -> Measurements:
     if side == "target" and not acn["paired"]:
         raise UserError(f"{path} is not paired: it has no target side")
     key = (lambda k: k) if side == "source" else schema.target_key
+    gains = bool(acn.get("gains_per_step")) and side == "source"
     cols, _ = read_columns(path, [key(schema.STATE), key(schema.ACTION), key(schema.NEXT_STATE)]
-                           + ["episode_index", "frame_index"], optional=(key(schema.EFFORT),))
+                           + ["episode_index", "frame_index"] + [schema.ACTION_GAINS] * gains,
+                           optional=(key(schema.EFFORT),))
     state, action, next_state = cols[key(schema.STATE)], cols[key(schema.ACTION)], cols[key(schema.NEXT_STATE)]
+    if gains:  # the actions carry the gains sent with them (SimConfig.gains_per_step)
+        sent = cols[schema.ACTION_GAINS]
+        if not (np.isfinite(sent).all() and (sent >= 0).all()):
+            raise UserError(f"{path} has gains in {schema.ACTION_GAINS} that are negative or not finite")
+        action = np.concatenate([action, sent], axis=1)
     effort = cols.get(key(schema.EFFORT), np.full_like(action, np.nan))
     missing = list(acn.get("missing_channels", []))
     lacking = [g for g in REQUIRED_GROUPS if all(n in missing for n in GROUPS[g])]
@@ -140,7 +152,7 @@ def load_measurements(path: str | Path, side: str = "source") -> Measurements:
     if not np.isfinite(action).all():
         raise UserError(f"{path} has non-finite actions")
     control = SimConfig(physics_dt=acn["physics_dt"], substeps=acn["substeps"], action_mode=acn["action_mode"],
-                        kp=acn["kp"], kd=acn["kd"], torque_limit=acn["torque_limit"])
+                        kp=acn["kp"], kd=acn["kd"], torque_limit=acn["torque_limit"], gains_per_step=gains)
     who = (acn.get(side) or {}).get("simulator") or side
     return Measurements(state, action, next_state, effort, cols["episode_index"].astype(np.int64),
                         cols["frame_index"].astype(np.int64), control, acn,

@@ -28,17 +28,21 @@ from acn.atomic import move_into_place, temporary_beside
 from acn.datasets import schema
 from acn.errors import UserError
 from acn.toolkit.collector import Episode, Trace
+from acn.toolkit.state import ACTION_DIM
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
 
 def episode_columns(ep: Episode, paired: bool) -> dict[str, np.ndarray]:
-    """The per-frame feature columns of one episode (no index columns)."""
+    """The per-frame feature columns of one episode (no index columns); an action 36 wide
+    (targets, kp, kd: ``SimConfig.gains_per_step``) goes into ``action`` and ``action.gains``."""
     cols: dict[str, np.ndarray] = {}
 
     def put(tr: Trace, prefix: str) -> None:
         cols[prefix + schema.STATE] = tr.state.astype(np.float32)
-        cols[prefix + schema.ACTION] = tr.action.astype(np.float32)
+        cols[prefix + schema.ACTION] = tr.action[:, :ACTION_DIM].astype(np.float32)
+        if tr.action.shape[1] > ACTION_DIM:
+            cols[prefix + schema.ACTION_GAINS] = tr.action[:, ACTION_DIM:].astype(np.float32)
         cols[prefix + schema.EFFORT] = tr.effort.astype(np.float32)
         cols[prefix + schema.NEXT_STATE] = tr.next_state.astype(np.float32)
         cols[prefix + schema.NEXT_FALLEN] = tr.fallen.astype(bool)
@@ -87,7 +91,8 @@ class DatasetWriter:
         self._tmp = temporary_beside(self.root)
         self.paired, self.task = paired, task
         self.meta = LeRobotDatasetMetadata.create(
-            repo_id=f"acn/{self.root.name}", fps=fps, features=schema.features(paired),
+            repo_id=f"acn/{self.root.name}", fps=fps,
+            features=schema.features(paired, gains=bool(acn_meta.get("gains_per_step"))),
             robot_type=schema.ROBOT_TYPE, root=self._tmp, use_videos=False,
         )
         self._acn = {**acn_meta, "episodes": []}

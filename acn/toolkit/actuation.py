@@ -11,6 +11,14 @@ From the action a_t to the torque on each joint, per physics step (all per joint
    **torque mode**: ``tau_cmd = clip(command, -limit, limit)``;
 4. **motor strength**: the joint receives ``strength * tau_cmd``.
 
+**Gains sent with each command** (``SimConfig.gains_per_step``, a controller that switches its
+legs between stance and swing gains, or any MIT-style command): the action is 36 numbers, the
+target u, then kp_t, kd_t (12 each), and step 3 reads ``tau_cmd = clip(kp_scale kp_t e -
+kd_scale kd_t qdot, ...)``. Latency delays the three streams (kp_t u, kp_t, kd_t) together, so
+a physics step's command is the average of the torque laws in force during it:
+``kp_scale (A - G reading) - kd_scale D qdot`` with A = mean(kp_t u), G = mean(kp_t), D =
+mean(kd_t) (``commands`` returns (A, G, D), 36 columns).
+
 With nominal parameters this is exactly ``SimConfig``'s PD law. MuJoCo realises steps 2-4 with
 native actuator parameters when there is no dead band (``Actuation.native``); otherwise, and
 in PyBullet, ``torque`` is evaluated in Python every physics step. Latency is always realised
@@ -43,6 +51,9 @@ class Actuation:
     latency: float          # s
     physics_dt: float       # s
     substeps: int
+    scheduled: bool = False  # the gains come with each action (see module docstring)
+    kp_scale: np.ndarray | float = 1.0  # what multiplies the gains sent (kp = kp_scale x the config's kp)
+    kd_scale: np.ndarray | float = 1.0
 
     @classmethod
     def from_config(cls, config) -> "Actuation":
@@ -53,7 +64,8 @@ class Actuation:
         return cls(mode=config.action_mode, kp=per_joint(config.kp) * p.kp_scale, kd=per_joint(config.kd) * p.kd_scale,
                    limit=limit * ones, strength=p.motor_strength.copy(), offset=p.encoder_offset.copy(),
                    deadband=p.backlash / 2.0, latency=float(p.latency), physics_dt=config.physics_dt,
-                   substeps=config.substeps)
+                   substeps=config.substeps, scheduled=config.gains_per_step, kp_scale=p.kp_scale.copy(),
+                   kd_scale=p.kd_scale.copy())
 
     @property
     def native(self) -> bool:
@@ -85,23 +97,37 @@ class Actuation:
     def commands(self, actions: np.ndarray) -> np.ndarray:
         """Per-physics-step commands for consecutive control steps.
 
-        ``actions`` (..., history + K, 12): the ``history`` previous actions, then the K actions
-        to apply. Returns (..., K * substeps, 12).
+        ``actions`` (..., history + K, 12), or 36 wide with the gains: the ``history`` previous
+        actions, then the K actions to apply. Returns (..., K * substeps, 12), or with the gains
+        (..., K * substeps, 36): (A, G, D) of the module docstring.
         """
+        if self.scheduled:
+            u, kp, kd = np.split(actions, 3, axis=-1)
+            actions = np.concatenate([kp * u, kp, kd], axis=-1)
         hist = self.history
         if hist == 0 and self.latency == 0:
             return np.repeat(actions, self.substeps, axis=-2)
         w = self.command_weights()
         k = actions.shape[-2] - hist
-        windows = np.stack([actions[..., i:i + hist + 1, :] for i in range(k)], axis=-3)  # (..., K, H+1, 12)
+        windows = np.stack([actions[..., i:i + hist + 1, :] for i in range(k)], axis=-3)  # (..., K, H+1, width)
         cmd = np.einsum("sh,...khj->...ksj", w, windows)
-        return cmd.reshape(*actions.shape[:-2], k * self.substeps, NUM_JOINTS)
+        return cmd.reshape(*actions.shape[:-2], k * self.substeps, actions.shape[-1])
 
     # ----- steps 2-4: the torque a joint receives -------------------------------------------
     def torque(self, command: np.ndarray, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
-        """Joint torque (..., 12), N m, from the command and the TRUE joint angle and velocity."""
+        """Joint torque (..., 12), N m, from the command (``commands``) and the TRUE joint angle
+        and velocity."""
         if self.mode == "torque":
             return self.strength * np.clip(command, -self.limit, self.limit)
+        if self.scheduled:  # kp_t e = A - G reading, with the dead band on e = A / G - reading
+            a, g, d = np.split(command, 3, axis=-1)
+            reading = q + self.offset
+            if self.deadband.any():
+                e = np.divide(a, g, out=np.array(reading, dtype=float, copy=True), where=g > 0) - reading
+                stiff = g * np.sign(e) * np.maximum(np.abs(e) - self.deadband, 0.0)
+            else:
+                stiff = a - g * reading
+            return self.strength * np.clip(self.kp_scale * stiff - self.kd_scale * d * qd, -self.limit, self.limit)
         e = command - (q + self.offset)
         if self.deadband.any():
             e = np.sign(e) * np.maximum(np.abs(e) - self.deadband, 0.0)

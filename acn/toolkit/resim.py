@@ -40,10 +40,10 @@ class Prediction:
 
 
 def _history_window(actions: np.ndarray, previous: np.ndarray | None, need: int) -> np.ndarray:
-    """(N, need + K, 12): ``need`` previous actions then the K actions. Unknown earlier actions
+    """(N, need + K, width): ``need`` previous actions then the K actions. Unknown earlier actions
     are taken equal to the oldest one known (or to the first action)."""
-    n = len(actions)
-    prev = np.empty((n, 0, ACTION_DIM)) if previous is None else np.asarray(previous, float).reshape(n, -1, ACTION_DIM)
+    n, width = len(actions), actions.shape[-1]
+    prev = np.empty((n, 0, width)) if previous is None else np.asarray(previous, float).reshape(n, -1, width)
     if prev.shape[1] < need:
         fill = prev[:, :1] if prev.shape[1] else actions[:, :1]
         prev = np.concatenate([np.repeat(fill, need - prev.shape[1], axis=1), prev], axis=1)
@@ -60,8 +60,10 @@ class Resimulator:
             raise ValueError("a Resimulator needs at least one model")
         base = self.configs[0]
         for c in self.configs:
-            if (c.physics_dt, c.substeps, c.action_mode) != (base.physics_dt, base.substeps, base.action_mode):
-                raise ValueError("all models of one Resimulator share physics_dt, substeps and action mode")
+            if (c.physics_dt, c.substeps, c.action_mode, c.gains_per_step) != \
+                    (base.physics_dt, base.substeps, base.action_mode, base.gains_per_step):
+                raise ValueError("all models of one Resimulator share physics_dt, substeps, action mode and "
+                                 "whether gains come with the actions")
         self.actuation = [Actuation.from_config(c) for c in self.configs]
         self.threads = threads or max(1, min(parallel.usable_cpus(), 8))
         self._models: list | None = None   # MuJoCo models, compiled on first use
@@ -75,17 +77,18 @@ class Resimulator:
             model: np.ndarray | int | None = None) -> Prediction:
         """Predict K control steps from each of N states.
 
-        ``states`` (N, 43) recorded s_t; ``actions`` (N, K, 12) or (N, 12) the actions from t on;
-        ``previous`` (N, P, 12) the actions before t, oldest first (optional); ``model`` (N,)
-        index into the models per row (default: model 0 for every row).
+        ``states`` (N, 43) recorded s_t; ``actions`` (N, K, A) or (N, A) the actions from t on
+        (A = ``SimConfig.action_dim``: 12, or 36 with the gains); ``previous`` (N, P, A) the actions
+        before t, oldest first (optional); ``model`` (N,) index into the models per row (default:
+        model 0 for every row).
         """
         states = np.asarray(states, dtype=np.float64)
         actions = np.asarray(actions, dtype=np.float64)
         if actions.ndim == 2:
             actions = actions[:, None, :]
-        n = len(states)
-        if states.shape != (n, STATE_DIM) or actions.shape[0] != n or actions.shape[2] != ACTION_DIM:
-            raise ValueError(f"states (N, {STATE_DIM}) and actions (N, K, {ACTION_DIM}) must match; "
+        n, width = len(states), self.configs[0].action_dim
+        if states.shape != (n, STATE_DIM) or actions.shape[0] != n or actions.shape[2] != width:
+            raise ValueError(f"states (N, {STATE_DIM}) and actions (N, K, {width}) must match; "
                              f"got {states.shape} and {actions.shape}")
         index = np.zeros(n, dtype=int) if model is None else np.broadcast_to(np.asarray(model, dtype=int), (n,))
         out = Prediction(np.full((n, actions.shape[1], STATE_DIM), np.nan),
@@ -124,7 +127,8 @@ class Resimulator:
         layout, sub, k = self._layout, self.configs[0].substeps, actions.shape[1]
         offset = np.stack([a.offset for a in self.actuation])[index]
         frame = np.stack([c.params.base_frame_offset for c in self.configs])[index]
-        commands = np.empty((len(states), k * sub, ACTION_DIM))
+        width = 3 * ACTION_DIM if self.configs[0].gains_per_step else ACTION_DIM  # Actuation.commands
+        commands = np.empty((len(states), k * sub, width))
         for m in np.unique(index):  # per-physics-step commands carry each model's latency
             rows = np.flatnonzero(index == m)
             act = self.actuation[m]
@@ -132,7 +136,7 @@ class Resimulator:
                                      act.history)
             commands[rows] = act.commands(window)
         native = np.array([a.native for a in self.actuation])[index]
-        chunk = max(1, MAX_BATCH_FLOATS // (k * sub * (layout.size + ACTION_DIM)))
+        chunk = max(1, MAX_BATCH_FLOATS // (k * sub * (layout.size + width)))
         with mujoco.rollout.Rollout(nthread=self.threads) as pool:
             for lo in range(0, len(states), chunk):
                 sel = slice(lo, min(lo + chunk, len(states)))
@@ -157,8 +161,8 @@ class Resimulator:
             ctrl = commands[:, j].copy()
             for rows in python_law:
                 act = self.actuation[index[rows[0]]]
-                ctrl[rows] = act.torque(commands[rows, j], x[rows][:, 1 + layout.qadr],
-                                        x[rows][:, 1 + layout.nq + layout.dadr])
+                ctrl[rows, :ACTION_DIM] = act.torque(commands[rows, j], x[rows][:, 1 + layout.qadr],
+                                                     x[rows][:, 1 + layout.nq + layout.dadr])
             st, sens = pool.rollout(models, self._datas, x, ctrl[:, None, :])
             phys[:, j], torque[:, j] = st[:, -1], sens[:, -1]
             x = st[:, -1]

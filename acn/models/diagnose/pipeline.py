@@ -44,6 +44,7 @@ from acn.models.diagnose.rank import (STRUCTURED_SHARE, Candidate, doubt, explai
                                       fits_noise_by_size, one_step_only, rank)
 from acn.models.diagnose.where import breakdown
 from acn.toolkit.effects import Model, get_effect
+from acn.toolkit.state import ACTION_DIM
 
 EXACT = 1e-3                  # headline error below which a model reproduces the data (float32 storage: ~1e-6)
 EFFECT_SHARE = 0.7            # of the structured error an effect must explain to be named
@@ -279,7 +280,8 @@ def explain_corrector(data: Measurements, model: Model, corrector_dir, cfg: Diag
     problem = prepare(data, model, cfg)
     rows = np.concatenate([problem.fit_rows, problem.held_rows])
     d = problem.data
-    corrected = corrector.correct(d.state[rows], d.action[rows])
+    corrected = d.action[rows].copy()  # the targets corrected; gains sent with them stay
+    corrected[:, :ACTION_DIM] = corrector.correct(d.state[rows], d.targets[rows])
     config = model.sim_config(problem.control)
     with Resimulator(model.backend, config, threads=cfg.threads) as sim:
         pred = sim.run(d.starts(rows, model.backend, config), corrected, d.previous_actions(rows, problem.history))

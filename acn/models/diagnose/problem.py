@@ -30,7 +30,7 @@ from acn.errors import UserError
 from acn.toolkit.backends import SimConfig
 from acn.toolkit.effects import EFFECT_NAMES, Model
 from acn.toolkit.resim import Resimulator
-from acn.toolkit.state import GROUPS, SLICES, STATE_NAMES
+from acn.toolkit.state import ACTION_DIM, GROUPS, SLICES, STATE_NAMES
 
 # Channel groups a model is compared on (contacts are binary readings, not predicted).
 COMPARED_GROUPS = ("base_pos", "base_rpy", "joint_pos", "base_linvel", "base_angvel", "joint_vel", "imu_acc")
@@ -118,8 +118,8 @@ class Problem:
         d = self.data
         actions = self.actions(rows + shift, horizon)
         if corrector is not None and horizon == 1:
-            for i in range(self.unit):
-                actions[:, i] = corrector.correct(d.state[rows + i], actions[:, i])
+            for i in range(self.unit):  # the targets; gains sent with them stay
+                actions[:, i, :ACTION_DIM] = corrector.correct(d.state[rows + i], actions[:, i, :ACTION_DIM])
         with Resimulator(self.backend, configs, threads=self.threads) as sim:
             pred = sim.run(d.starts(rows, self.backend, configs, model_of_row), actions,
                            d.previous_actions(rows + shift, self.history), model=model_of_row)

@@ -75,6 +75,10 @@ class SimConfig:
     kd: JointGains = 1.5          # N m s/rad, position-mode PD damping (every joint, or per joint)
     torque_limit: float = 33.5    # N m, applied to every joint in both modes
     params: ModelParams = field(default_factory=ModelParams)
+    # The controller sends its gains with every command (position mode; ``acn.toolkit.actuation``):
+    # an action is then 36 numbers, the 12 targets, the 12 kp and the 12 kd in force with them,
+    # and kp, kd above are only the gains it uses most (what the data checks assume).
+    gains_per_step: bool = False
 
     def __post_init__(self) -> None:
         self.kp, self.kd = joint_gains(self.kp), joint_gains(self.kd)
@@ -83,9 +87,17 @@ class SimConfig:
     def control_dt(self) -> float:
         return self.physics_dt * self.substeps
 
+    @property
+    def action_dim(self) -> int:
+        """Numbers per action: 12 targets or torques, 36 with the gains (``gains_per_step``)."""
+        return 3 * ACTION_DIM if self.gains_per_step else ACTION_DIM
+
     def validate(self) -> None:
         if self.action_mode not in ACTION_MODES:
             raise ValueError(f"action mode must be one of {ACTION_MODES}, got {self.action_mode!r}")
+        if self.gains_per_step and self.action_mode != "position":
+            raise ValueError("gains sent with each command complete a position target: gains_per_step needs "
+                             "position mode")
         if not (0 < self.physics_dt <= MAX_PHYSICS_DT):
             raise ValueError(f"physics_dt must be in (0, {MAX_PHYSICS_DT}] s, got {self.physics_dt}")
         if self.substeps < 1:
@@ -95,8 +107,13 @@ class SimConfig:
 
 
 def pd_torque(target: np.ndarray, q: np.ndarray, qd: np.ndarray, cfg: SimConfig) -> np.ndarray:
-    """The position-mode control law, N m (see module docstring)."""
-    return np.clip(per_joint(cfg.kp) * (target - q) - per_joint(cfg.kd) * qd, -cfg.torque_limit, cfg.torque_limit)
+    """The position-mode control law, N m (see module docstring); ``target`` (..., 12), or 36 wide
+    with the gains sent with it (``SimConfig.gains_per_step``)."""
+    if target.shape[-1] == 3 * NUM_JOINTS:
+        target, kp, kd = np.split(target, 3, axis=-1)
+    else:
+        kp, kd = per_joint(cfg.kp), per_joint(cfg.kd)
+    return np.clip(kp * (target - q) - kd * qd, -cfg.torque_limit, cfg.torque_limit)
 
 
 def physics_hz_for(control_hz: int, physics_hz: int | None = None) -> int:
@@ -191,7 +208,8 @@ class Backend(ABC):
         s = np.asarray(state, dtype=np.float64)
         if s.shape != (STATE_DIM,) or not np.all(np.isfinite(s[_DYNAMIC])):
             raise ValueError(f"state must be a vector of shape ({STATE_DIM},), finite in its dynamic channels")
-        self._history = None if previous_actions is None else np.asarray(previous_actions, float).reshape(-1, ACTION_DIM)
+        width = self.config.action_dim
+        self._history = None if previous_actions is None else np.asarray(previous_actions, float).reshape(-1, width)
         trunk = frames.state_in_trunk(s[None], self._frame)[0] if self._frame.any() else s  # in the trunk link frame
         quat = rpy_to_quat(trunk[SLICES["base_rpy"]])
         rot = quat_to_matrix(quat)
@@ -206,13 +224,15 @@ class Backend(ABC):
         self._state = None
 
     def step(self, action: np.ndarray) -> np.ndarray:
-        """Advance one control step under ``action`` (12,); return mean applied torque (12,), N m.
+        """Advance one control step under ``action`` (12,), or (36,) with the gains sent with it
+        (``SimConfig.gains_per_step``); return mean applied torque (12,), N m.
 
         Raises ``SimulationDiverged`` if the simulator produced an absurd state.
         """
         a = np.asarray(action, dtype=np.float64)
-        if a.shape != (ACTION_DIM,) or not np.all(np.isfinite(a)):
-            raise ValueError(f"action must be a finite vector of shape ({ACTION_DIM},)")
+        width = self.config.action_dim
+        if a.shape != (width,) or not np.all(np.isfinite(a)):
+            raise ValueError(f"action must be a finite vector of shape ({width},)")
         self._state = None
         tau = self._advance(self._commands(a))
         dyn = self._read_dynamics()
@@ -237,11 +257,12 @@ class Backend(ABC):
 
     # ----- shared helpers ---------------------------------------------------------------
     def _commands(self, action: np.ndarray) -> np.ndarray:
-        """(substeps, 12) per-physics-step commands for ``action``; remembers it for the latency."""
+        """(substeps, width) per-physics-step commands for ``action`` (``Actuation.commands``);
+        remembers it for the latency."""
         hist = self.actuation.history
-        if hist == 0 and self.actuation.latency == 0:
+        if hist == 0 and self.actuation.latency == 0 and not self.actuation.scheduled:
             return np.broadcast_to(action, (self.config.substeps, ACTION_DIM))
-        past = self._history if self._history is not None else np.empty((0, ACTION_DIM))
+        past = self._history if self._history is not None else np.empty((0, len(action)))
         if len(past) < hist:  # earlier actions unknown: taken equal to the oldest one known
             fill = past[0] if len(past) else action
             past = np.concatenate([np.repeat(fill[None], hist - len(past), axis=0), past])

@@ -8,12 +8,17 @@ stepped with ``mj_step`` or re-simulated in batches with ``mujoco.rollout``:
   (-s kp offset, -s kp, -s kd)), force-limited to +-s limit, with s the motor strength;
 - torque mode: ``tau = s ctrl``, ctrl-limited to +-limit;
 - position mode with a dead band (backlash), which no affine actuator can express: plain
-  motors (``tau = ctrl``), the torque computed by ``Actuation.torque`` every physics step.
+  motors (``tau = ctrl``), the torque computed by ``Actuation.torque`` every physics step;
+- gains sent with each command (``SimConfig.gains_per_step``): three actuators per joint, whose
+  36 controls are ``Actuation.commands``' (A, G, D): a motor ``s kp_scale A``, an affine gain
+  ``G (-s kp_scale (q + offset))`` and one ``D (-s kd_scale qdot)``, their sum limited to
+  +-s limit at the joint (``actfrcrange``); with a dead band the motors carry the torque and the
+  24 others take their controls with no force.
 
 The physical parameters of ``ModelParams`` are written into the spec: joint damping,
 frictionloss and armature, the payload combined into the trunk's inertia, geom friction and
 the contact's time constant (``solref``).
-One ``actuatorfrc`` sensor per joint gives the applied torque in ``mujoco.rollout``'s sensor data.
+One ``jointactuatorfrc`` sensor per joint gives the applied torque in ``mujoco.rollout``'s sensor data.
 
 Euler integration, like PyBullet's semi-implicit step, and only robot-floor contacts
 (PyBullet does not collide a robot with itself by default).
@@ -73,14 +78,21 @@ def build_spec(config: SimConfig) -> mujoco.MjSpec:
         name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1],
         contype=0, conaffinity=1, friction=[prm.ground_friction, 0.005, 0.0001], solref=solref,
     )
+    scheduled = act.scheduled and act.native
     for k, jname in enumerate(JOINT_NAMES):
         joint = spec.joint(URDF_JOINT[jname])
         joint.damping[0] = float(prm.joint_damping[k])  # MuJoCo 4: polynomial coefficients, [0] linear
         joint.frictionloss = float(prm.joint_friction[k])
         joint.armature = float(prm.armature[k])
-        joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_FALSE  # the control law limits torque
         a = spec.add_actuator(name=jname, target=URDF_JOINT[jname], trntype=mujoco.mjtTrn.mjTRN_JOINT)
         s, lim = float(act.strength[k]), float(act.limit[k])
+        a.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
+        if scheduled:  # three actuators per joint (below), limited together at the joint
+            joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_TRUE
+            joint.actfrcrange = [-s * lim, s * lim]
+            a.gainprm[0] = s * float(act.kp_scale[k])
+            continue
+        joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_FALSE  # the control law limits torque
         a.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
         a.forcerange = [-s * lim, s * lim]
         if cfg.action_mode == "position" and act.native:
@@ -88,16 +100,30 @@ def build_spec(config: SimConfig) -> mujoco.MjSpec:
             a.gainprm[0] = kp
             a.biastype = mujoco.mjtBias.mjBIAS_AFFINE
             a.biasprm[:3] = [-kp * float(act.offset[k]), -kp, -kd]
-            a.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
         elif cfg.action_mode == "torque":
             a.gainprm[0] = s
             a.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
             a.ctrlrange = [-lim, lim]
         else:  # the torque is computed by Actuation.torque each physics step
             a.gainprm[0] = 1.0
-            a.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
-        spec.add_sensor(name=f"{jname}_torque", type=mujoco.mjtSensor.mjSENS_ACTUATORFRC,
-                        objtype=mujoco.mjtObj.mjOBJ_ACTUATOR, objname=jname)
+    if act.scheduled:  # the controls G (kp_t) and D (kd_t) of each joint, after the 12 of A
+        for part in ("kp", "kd"):
+            for k, jname in enumerate(JOINT_NAMES):
+                a = spec.add_actuator(name=f"{jname}_{part}", target=URDF_JOINT[jname],
+                                      trntype=mujoco.mjtTrn.mjTRN_JOINT)
+                a.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
+                if not scheduled:  # Actuation.torque has used them: no force of their own
+                    a.gainprm[0] = 0.0
+                    continue
+                s = float(act.strength[k])
+                a.gaintype = mujoco.mjtGain.mjGAIN_AFFINE
+                if part == "kp":  # G (-s kp_scale (q + offset))
+                    a.gainprm[:3] = [-s * float(act.kp_scale[k] * act.offset[k]), -s * float(act.kp_scale[k]), 0.0]
+                else:             # D (-s kd_scale qdot)
+                    a.gainprm[:3] = [0.0, 0.0, -s * float(act.kd_scale[k])]
+    for jname in JOINT_NAMES:
+        spec.add_sensor(name=f"{jname}_torque", type=mujoco.mjtSensor.mjSENS_JOINTACTFRC,
+                        objtype=mujoco.mjtObj.mjOBJ_JOINT, objname=URDF_JOINT[jname])
     return spec
 
 
@@ -221,9 +247,9 @@ class MuJoCoBackend(Backend):
             if act.native:
                 d.ctrl[:] = command
             else:
-                d.ctrl[:] = act.torque(command, d.qpos[self._qadr], d.qvel[self._dadr])
+                d.ctrl[:12] = act.torque(command, d.qpos[self._qadr], d.qvel[self._dadr])
             mujoco.mj_step(m, d)
-            np.add(total, d.actuator_force, out=total)
+            np.add(total, d.qfrc_actuator[self._dadr], out=total)
         if d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number > bad:
             raise SimulationDiverged("MuJoCo reported a non-finite or huge acceleration")
         return total / len(commands)
