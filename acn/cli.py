@@ -594,7 +594,7 @@ def import_main(argv: list[str] | None = None) -> int:
                   "same way, q_des + (kd dq_des + tau_ff) / kp")
         if {"action_kp", "action_kd"} & set(r.folded):
             print("gains per row: stored with the actions (action.gains); the model's PD uses each row's gains "
-                  "(--kp, --kd are the gains the data checks assume)")
+                  "(--kp or --kd only for a kind the log does not send)")
         if args.physics_hz is None and (hz := physics_hz_for(args.control_hz)) != PHYSICS_HZ:
             print(f"the model simulates it at {hz} Hz, the multiple of {args.control_hz} Hz nearest {PHYSICS_HZ} Hz "
                   "(--physics-hz sets it)")

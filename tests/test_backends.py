@@ -156,7 +156,7 @@ def test_gains_sent_with_each_command_drive_the_pd(name):
     """With ``gains_per_step`` an action is (targets, kp, kd): at rest the first physics step's
     torque is kp_t (target - q) - kd_t qdot with the gains sent; sending the config's own gains
     every step is the plain PD (same trajectory under latency, strength, offsets, gain scales)."""
-    kp_t = np.linspace(20.0, 90.0, 12)
+    kp_t = np.linspace(20.0, 400.0, 12)  # the stiffest joints reach the torque limit
     with make_backend(name, SimConfig(substeps=1, gains_per_step=True)) as sim:
         s = sim.reset()
         target = s[SLICES["joint_pos"]] + 0.1

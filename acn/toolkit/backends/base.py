@@ -76,8 +76,8 @@ class SimConfig:
     torque_limit: float = 33.5    # N m, applied to every joint in both modes
     params: ModelParams = field(default_factory=ModelParams)
     # The controller sends its gains with every command (position mode; ``acn.toolkit.actuation``):
-    # an action is then 36 numbers, the 12 targets, the 12 kp and the 12 kd in force with them,
-    # and kp, kd above are only the gains it uses most (what the data checks assume).
+    # an action is then 36 numbers, the 12 targets, the 12 kp and the 12 kd in force with them
+    # (kp, kd above are then only recorded, not used by the law).
     gains_per_step: bool = False
 
     def __post_init__(self) -> None:
