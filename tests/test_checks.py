@@ -101,6 +101,16 @@ def _late(names):
     return change
 
 
+def _level_in_degrees(c):
+    """A trunk level within ~1.6 degrees (roll and pitch, and their rates, a tenth of the log's),
+    its Euler angles logged in degrees: read as rad they stay within +-pi/2."""
+    for n in ("base_roll", "base_pitch", "base_angvel_x", "base_angvel_y"):
+        c[n] = c[n] * 0.1
+    for n in GROUPS["base_rpy"]:
+        c[n] = c[n] * 180 / np.pi
+    assert np.abs(c["base_pitch"]).max() < np.pi / 2
+
+
 CALVES = [f"{j}_{k}" for j in JOINT_NAMES if "calf" in j for k in ("pos", "vel")] + \
     [f"action.{j}" for j in JOINT_NAMES if "calf" in j]
 
@@ -125,6 +135,7 @@ CORRUPTIONS = {
     "a gyroscope one row late": (_late(GROUPS["base_angvel"]), "every base_angvel channel lag the motion",
                                  "read at another time"),
     "trunk angles in degrees": (_scale(GROUPS["base_rpy"], 180 / np.pi), "base_pitch reaches", "degrees?"),
+    "a level trunk's angles in degrees": (_level_in_degrees, "Euler angles read as DEGREES", "degrees?"),
 }
 
 

@@ -93,7 +93,8 @@ def check(episodes: list[Episode], dt: float, action_mode: str = "position") -> 
     out += velocity_lag(episodes, dt, {c for f in out for c in f.channels})  # a lag is not blamed for a unit
     order = leg_order(states)
     out += order or stance_feet(states)  # the legs' order explains where the stance feet are
-    out += accelerometer(states) + contacts(states)
+    tilt_named = any(set(GROUPS["base_rpy"]) & set(f.channels) for f in out)  # degrees, another convention
+    out += accelerometer(states, trust_tilt=not tilt_named) + contacts(states)
     if action_mode == "position":
         out += actions(episodes)
     return out + repeats(episodes)
@@ -264,6 +265,8 @@ def velocities(episodes: list[Episode], dt: float, suspect: set[str] = frozenset
                 unrelated.append((f"{j}_vel", "unrelated", "is it this joint's velocity in rad/s?", r))
         out += _merge("velocities", problems, "{value} x the rate of change of the joint angle") + mixed
         out += _merge("velocities", unrelated, "does not follow the rate of change of the joint angle (correlation {value})")
+    if not suspect & set(GROUPS["base_rpy"]) and (degrees := _euler_in_degrees(episodes, dt)):
+        return out + [degrees]  # every trunk rate below reads the Euler angles
     # Trunk: body frame (the schema) against world frame, then the scale in the better one.
     rpy = SLICES["base_rpy"]
 
@@ -299,6 +302,36 @@ def velocities(episodes: list[Episode], dt: float, suspect: set[str] = frozenset
                 problems.append((name, *p, b))
         out += _merge("velocities", problems, "{value} x the trunk's rate of motion")
     return out
+
+
+def _euler_in_degrees(episodes: list[Episode], dt: float) -> Finding | None:
+    """The trunk's Euler angles logged in degrees. A robot level within a few degrees has them
+    within +-pi/2 read as rad, so ``pose`` cannot tell; their rate of change, read so, garbles
+    into the other axes. The finding where the gyroscope matches the rate of the angles read as
+    degrees on the axis that turns most (within 2x in scale, correlation >= 0.8), with a fifth of
+    the RMS difference of reading them as rad."""
+    rpy = SLICES["base_rpy"]
+    in_rad = []
+    for s, a in episodes:
+        s = s.copy()
+        s[:, rpy] /= DEG
+        in_rad.append((s, a))
+    as_logged = _windows(episodes, dt, SLICES["base_angvel"], _body_rate)
+    as_degrees = _windows(in_rad, dt, SLICES["base_angvel"], _body_rate)
+    if as_logged is None or as_degrees is None:
+        return None
+    x, y = as_degrees
+    most = int(np.argmax(y.std(0)))  # the axis that turns most, rad/s
+    b, r = _scale(x[:, most], y[:, most])
+    if not (y[:, most].std() > 0.05 and 0.5 <= b <= 2 and r >= 0.8):
+        return None
+    e_deg = float(np.sqrt(((x - y) ** 2).mean()))
+    e_rad = float(np.sqrt(((as_logged[0] - as_logged[1]) ** 2).mean()))
+    if not e_deg < 0.2 * e_rad:
+        return None
+    return Finding("velocities", GROUPS["base_rpy"], f"base_angvel matches the rate of change of the Euler angles "
+                   f"read as DEGREES (RMS difference {e_deg:.3g} rad/s) better than read as rad ({e_rad:.3g} rad/s): "
+                   'degrees? map base_roll, base_pitch and base_yaw with "scale": 0.0174533')
 
 
 def lag(episodes: list[Episode], dt: float, group: str) -> tuple[float, float]:
@@ -537,10 +570,12 @@ def leg_order(states: np.ndarray, most: int = 2000) -> list[Finding]:
 
 
 # ----- sensors and actions ---------------------------------------------------------------------
-def accelerometer(states: np.ndarray) -> list[Finding]:
+def accelerometer(states: np.ndarray, trust_tilt: bool = True) -> list[Finding]:
+    """The accelerometer's mean on a trunk near level (``trust_tilt`` False: the Euler angles are
+    named wrong, every row counts)."""
     acc = states[:, SLICES["imu_acc"]]
     tilt = states[:, [STATE_NAMES.index("base_roll"), STATE_NAMES.index("base_pitch")]]
-    if np.isfinite(tilt).all(1).mean() > 0.5:  # rows near level only (the robot may have fallen)
+    if trust_tilt and np.isfinite(tilt).all(1).mean() > 0.5:  # rows near level only (the robot may have fallen)
         acc = acc[(np.abs(tilt) < 0.3).all(1)]
     acc = acc[np.isfinite(acc).all(1)]
     if len(acc) < MIN_ROWS:
