@@ -62,6 +62,9 @@ class LogSpec:
     stance_gains: tuple[float, float] | None = None  # (kp, kd) multiples the controller sends a leg in the
     # stance half of a gait clock (diagonal pairs in antiphase), the nominal gains in the swing half, as
     # controllers that switch gains by gait phase do; logged as action_kp.*, action_kd.* (gains per row)
+    stance_torque: bool = False          # an MPC-style controller on the same clock: legs in stance get kp 0 and a
+    # feedforward torque it computes from its (noisy) readings, kp (q_target - q) (the virtual stiffness an MPC's
+    # force plan stands for), legs in swing the nominal PD; logged as action_kp.*, action_kd.*, action_torque.*
     gait_period: float = 0.5             # s, that clock's period
     torque_control: bool = False         # the controller runs the PD itself, on the MEASURED (noisy) joint
     # angles and speeds, once per control step, and sends torques: the log's actions are N m
@@ -152,7 +155,9 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
     """Rows of every episode, as our channel names -> values (plus episode_index, timestamp, actions)."""
     if s.torque_control and s.feedforward:
         raise ValueError("torque_control and feedforward are two kinds of command: choose one")
-    if s.torque_control and (s.gains != (1.0, 1.0) or s.deadband or s.stance_gains):
+    if s.stance_torque and (s.feedforward or s.stance_gains):
+        raise ValueError("stance_torque sends its own gains and feedforward: not with feedforward or stance_gains")
+    if s.torque_control and (s.gains != (1.0, 1.0) or s.deadband or s.stance_gains or s.stance_torque):
         raise ValueError("torque_control: the PD gains and dead band are the controller's, logged in its torques")
     m = _spec(s).compile()
     d = mujoco.MjData(m)
@@ -177,8 +182,10 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
                                              *(f"action.{j}" for j in JOINT_NAMES))}
     if s.feedforward:
         rows.update({f"action_{kind}.{j}": [] for kind in ("vel", "torque") for j in JOINT_NAMES})
-    if s.stance_gains:
+    if s.stance_gains or s.stance_torque:
         rows.update({f"action_{kind}.{j}": [] for kind in ("kp", "kd") for j in JOINT_NAMES})
+    if s.stance_torque:
+        rows.update({f"action_torque.{j}": [] for j in JOINT_NAMES})
     for ep in range(s.episodes):
         target = _targets(s, rng)
         mujoco.mj_resetData(m, d)
@@ -214,6 +221,10 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
                 kp_t, kd_t = np.where(stance, s.stance_gains[0] * kp, kp), np.where(stance, s.stance_gains[1] * kd, kd)
             if s.feedback:
                 a = a + _level(state, s.feedback)
+            if s.stance_torque:  # stance legs: no position loop, the controller's torque from its readings
+                stance = (k / s.control_hz / s.gait_period + leg_phase) % 1.0 < 0.5
+                tau_ff = np.where(stance, kp * (a - state[SLICES["joint_pos"]]), 0.0)
+                kp_t = np.where(stance, 0.0, kp)
             if s.torque_control:  # the PD on the readings, in the controller: the action is its torque
                 q_read, qd_read = state[SLICES["joint_pos"]], state[SLICES["joint_vel"]]
                 a = kp * (a - q_read) - kd * qd_read  # unclipped: the motor limits it
@@ -225,10 +236,13 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
                 for j, v, f in zip(JOINT_NAMES, dq_des, tau_ff):
                     rows[f"action_vel.{j}"].append(v)
                     rows[f"action_torque.{j}"].append(f)
-            if s.stance_gains:
+            if s.stance_gains or s.stance_torque:
                 for j, p_, d_ in zip(JOINT_NAMES, kp_t, kd_t):
                     rows[f"action_kp.{j}"].append(p_)
                     rows[f"action_kd.{j}"].append(d_)
+            if s.stance_torque:
+                for j, f in zip(JOINT_NAMES, tau_ff):
+                    rows[f"action_torque.{j}"].append(f)
             rows["episode_index"].append(ep)
             rows["timestamp"].append(clock / s.physics_hz if s.jitter_logged else k / s.control_hz)
             v_prev = d.qvel[0:3].copy()

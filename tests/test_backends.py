@@ -153,16 +153,19 @@ def test_position_mode_torque_is_the_pd_law(name):
 
 @pytest.mark.parametrize("name", BACKENDS)
 def test_gains_sent_with_each_command_drive_the_pd(name):
-    """With ``gains_per_step`` an action is (targets, kp, kd): at rest the first physics step's
-    torque is kp_t (target - q) - kd_t qdot with the gains sent; sending the config's own gains
-    every step is the plain PD (same trajectory under latency, strength, offsets, gain scales)."""
-    kp_t = np.linspace(20.0, 400.0, 12)  # the stiffest joints reach the torque limit
+    """With ``gains_per_step`` an action is (targets, kp, kd, feedforward): at rest the first
+    physics step's torque is kp_t (target - q) - kd_t qdot + f_t with what was sent (kp_t 0: the
+    feedforward alone); sending the config's own gains and no feedforward every step is the plain
+    PD (same trajectory under latency, strength, offsets, gain scales)."""
+    kp_t = np.linspace(0.0, 400.0, 12)  # the stiffest joints reach the torque limit
+    f_t = np.linspace(-3.0, 3.0, 12)
     with make_backend(name, SimConfig(substeps=1, gains_per_step=True)) as sim:
         s = sim.reset()
         target = s[SLICES["joint_pos"]] + 0.1
-        tau = sim.step(np.concatenate([target, kp_t, np.full(12, 2.0)]))
-        np.testing.assert_allclose(tau, np.clip(kp_t * 0.1 - 2.0 * s[SLICES["joint_vel"]], -33.5, 33.5), atol=1e-5)
-        with pytest.raises(ValueError, match=r"\(36,\)"):
+        tau = sim.step(np.concatenate([target, kp_t, np.full(12, 2.0), f_t]))
+        np.testing.assert_allclose(tau, np.clip(kp_t * 0.1 - 2.0 * s[SLICES["joint_vel"]] + f_t, -33.5, 33.5),
+                                   atol=1e-5)
+        with pytest.raises(ValueError, match=r"\(48,\)"):
             sim.step(target)
     params = ModelParams(latency=0.013, motor_strength=0.8, encoder_offset=0.02, kp_scale=0.7, kd_scale=1.3)
     runs = []
@@ -171,7 +174,7 @@ def test_gains_sent_with_each_command_drive_the_pd(name):
             s, trot, states = sim.reset(), Trot(), []
             for k in range(15):
                 a = trot(s, 0.02 * k)
-                sim.step(np.concatenate([a, np.full(12, 60.0), np.full(12, 1.5)]) if gains else a)
+                sim.step(np.concatenate([a, np.full(12, 60.0), np.full(12, 1.5), np.zeros(12)]) if gains else a)
                 s = sim.get_state()
                 states.append(s[:36])
         runs.append(np.array(states))

@@ -332,10 +332,28 @@ def test_a_controller_that_switches_gains_by_gait_phase_has_its_damping_found(tm
     write_log(tmp_path / "log.csv", LogSpec(noise=1.0, seed=31, stance_gains=(0.5, 1.5), spec_edit=damping))
     path, _ = import_log(tmp_path / "log.csv", tmp_path / "robot", ImportConfig(50, 60.0, 1.5, 33.5))
     m = load_measurements(path)
-    assert m.control.gains_per_step and m.action.shape[1] == 36
+    assert m.control.gains_per_step and m.action.shape[1] == 48
     d = diagnose(m, Model.parse("mujoco"), replace(FAST, finest="shared"), add=["joint_damping"])
     assert d.ranking[0].name == "joint_damping" and d.verdict == "effect", d.reason
     assert close(d.added[0].fit.values["value"], 0.5, rel=0.1)
+    assert d.added[0].judgement.explained(d.floor_mse) >= 0.8
+
+
+def test_an_mpc_style_controller_that_sends_stance_legs_pure_torques_has_its_latency_found(tmp_path):
+    """Stance legs on kp 0 with a torque the controller computes from its noisy readings (as an
+    MPC's force plan), swing legs on the PD: the actions carry kp_t, kd_t and the feedforward
+    (48 wide), and a 15 ms latency is named and fitted. Folded into targets for the imported
+    gains (before) it read 10.0 ms with armature ranked first, and damping 0.5 read 0.16."""
+    from acn.datasets.importer import ImportConfig, import_log
+
+    write_log(tmp_path / "log.csv", LogSpec(noise=1.0, seed=31, stance_torque=True, latency_steps=15))
+    path, report = import_log(tmp_path / "log.csv", tmp_path / "robot", ImportConfig(50, 60.0, 1.5, 33.5))
+    assert report.findings == [] and set(report.folded) == {"action_torque", "action_kp", "action_kd"}
+    m = load_measurements(path)
+    assert m.action.shape[1] == 48 and (m.action[:, 12:24] == 0).any()  # kp 0 on the stance legs
+    d = diagnose(m, Model.parse("mujoco"), replace(FAST, finest="shared"), add=["actuator_latency"])
+    assert d.ranking[0].name == "actuator_latency" and d.verdict == "effect", d.reason
+    assert abs(d.added[0].fit.values["seconds"] - 0.015) < 0.0015
     assert d.added[0].judgement.explained(d.floor_mse) >= 0.8
 
 

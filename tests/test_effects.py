@@ -109,8 +109,9 @@ def test_resimulation_reproduces_the_backend_step_by_step(backend, gains, backla
         s = sim.reset(s0)
         for k in range(12):
             a = trot(s, 0.02 * k)
-            if gains:  # stance and swing gains, alternating by leg pair
-                a = np.concatenate([a, 60.0 * (1.0 + 0.5 * np.sin(k + np.arange(12))), np.full(12, 1.5 + 0.1 * k)])
+            if gains:  # gains that change every step, a feedforward, two joints on torque alone at times
+                kp_t = 60.0 * (1.0 + 0.5 * np.sin(k + np.arange(12))) * (np.arange(12) % 6 != k % 2)
+                a = np.concatenate([a, kp_t, np.full(12, 1.5 + 0.1 * k), 2.0 * np.cos(k + np.arange(12))])
             efforts.append(sim.step(a))
             states.append(s)
             actions.append(a)

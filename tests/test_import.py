@@ -107,11 +107,13 @@ def test_a_hybrid_command_is_folded_into_the_position_targets(tmp_path, acn):
 def test_gains_sent_with_each_command_are_stored_with_the_actions(tmp_path, acn):
     """A controller that switches its legs between swing and stance gains sends them with every
     command (action_kp.*, action_kd.*): they are stored beside the targets (action.gains) and the
-    measurements' actions are 36 wide (targets, kp, kd), which the model's PD uses step by step;
-    gains of one kind for some joints only, or a row with kp 0, are refused in one line."""
+    measurements' actions are 48 wide (targets, kp, kd, feedforward), which the model's PD uses
+    step by step; gains of one kind for some joints only, or a negative gain, are refused in one
+    line."""
     write_log(tmp_path / "log.csv", LogSpec(seconds=1.0, episodes=2, seed=5, stance_gains=(0.5, 1.5), noise=1.0))
     r = acn("import", str(tmp_path / "log.csv"), "--out", str(tmp_path / "ds"), *CONTROL)
-    assert r.returncode == 0 and "gains per row: stored with the actions" in r.stdout, r.stdout + r.stderr
+    assert r.returncode == 0 and "gains per row (action_kp, action_kd): stored with the actions" in r.stdout, \
+        r.stdout + r.stderr
     assert "a hybrid command" not in r.stdout  # no velocity target or feedforward to fold
     table = pacsv.read_csv(str(tmp_path / "log.csv")).to_pydict()
     first = slice(0, 49)
@@ -119,13 +121,13 @@ def test_gains_sent_with_each_command_are_stored_with_the_actions(tmp_path, acn)
     kp_t, kd_t = cols("action_kp"), cols("action_kd")
     assert set(np.unique(kp_t)) == {30.0, 60.0} and set(np.unique(kd_t)) == {1.5, 2.25}  # swing, stance
     m = load_measurements(tmp_path / "ds")
-    assert m.control.gains_per_step and m.action.shape[1] == 36
-    np.testing.assert_allclose(m.action[first], np.hstack([cols("action"), kp_t, kd_t]), atol=1e-5)
+    assert m.control.gains_per_step and m.action.shape[1] == 48
+    np.testing.assert_allclose(m.action[first], np.hstack([cols("action"), kp_t, kd_t, 0 * kp_t]), atol=1e-5)
     assert load(tmp_path / "ds").meta.info["acn"]["gains_per_step"] is True
-    for dropped, message in ((["action_kp.FR_hip"], "action_kp.FR_hip"), ([], "kp <= 0")):
+    for dropped, message in ((["action_kp.FR_hip"], "action_kp.FR_hip"), ([], "negative")):
         bad = {k: v for k, v in table.items() if k not in dropped}
         if not dropped:
-            bad["action_kp.RL_calf"] = [0.0] * len(bad["action_kp.RL_calf"])
+            bad["action_kd.RL_calf"] = [-1.0] * len(bad["action_kd.RL_calf"])
         pacsv.write_csv(pa.table(bad), str(tmp_path / "bad.csv"))
         r = acn("import", str(tmp_path / "bad.csv"), "--out", str(tmp_path / "bad"), *CONTROL)
         assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and message in r.stderr, r.stderr

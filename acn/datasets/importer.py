@@ -45,6 +45,7 @@ import numpy as np
 from acn.datasets import checks, schema
 from acn.errors import UserError
 from acn.jsonfile import read_json
+from acn.toolkit.actuation import position_targets
 from acn.toolkit.backends.base import joint_gains, physics_hz_for
 from acn.toolkit.collector import FALL_RULE, Episode, Trace, fallen
 from acn.toolkit.robot import ModelParams, per_joint
@@ -327,7 +328,9 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
                 dropped += 1
                 continue
             now, nxt = rows[:-1], rows[1:]
-            written.append((state[rows], action[now, :NUM_JOINTS]))
+            targets = action[now] if action.shape[1] == NUM_JOINTS else \
+                position_targets(action[now], state[now][:, SLICES["joint_pos"]])
+            written.append((state[rows], targets))
             trace = Trace(state[now], action[now], effort[now], state[nxt],
                           np.array([_fallen(s) for s in state[nxt]], dtype=bool))
             writer.write(Episode(writer.num_episodes, timestamp[now] - timestamp[now[0]], trace, None, reason))
@@ -392,14 +395,15 @@ def _to_body_frame(state: np.ndarray, cfg: ImportConfig) -> np.ndarray:
 
 def _fold_hybrid(action: np.ndarray, cols: dict[str, np.ndarray], cfg: ImportConfig,
                  state: np.ndarray) -> tuple[np.ndarray, list[str]]:
-    """Position targets for the model's PD law from a hybrid command, and which kinds
+    """The actions for the model's PD law from a hybrid command, and which kinds
     (``HYBRID_COLUMNS``) the log had (each kind all 12 joints or none).
 
-    The motor runs kp (q_des - q) + kd (dq_des - qd) + tau_ff, which equals kp (u - q) - kd qd
-    at every state for the target u = q_des + (kd dq_des + tau_ff) / kp. With the imported gains
-    the targets are (N, 12). With gains per row (``action_kp.*``, ``action_kd.*``; the other
-    one the imported gains) u uses each row's kp_t, kd_t, and the actions are (N, 36): u, kp_t,
-    kd_t, which the model's PD uses step by step (``SimConfig.gains_per_step``); exact as well."""
+    The motor runs kp (q_des - q) + kd (dq_des - qd) + tau_ff. With the imported gains that equals
+    kp (u - q) - kd qd at every state for the target u = q_des + (kd dq_des + tau_ff) / kp: the
+    actions are those targets (N, 12). With gains per row (``action_kp.*``, ``action_kd.*``; the
+    other kind the imported gains) they are (N, 48): q_des, kp_t, kd_t and the feedforward
+    kd_t dq_des + tau_ff, which the model's PD uses step by step (``SimConfig.gains_per_step``;
+    a row may have kp_t = 0, a pure torque or damping command). Exact either way."""
     extra = {}
     for kind, columns in HYBRID_COLUMNS.items():
         have = [c for c in columns if c in cols]
@@ -418,19 +422,16 @@ def _fold_hybrid(action: np.ndarray, cols: dict[str, np.ndarray], cfg: ImportCon
     n = len(action)
     kp = np.broadcast_to(extra.get("action_kp", per_joint(cfg.kp)), (n, NUM_JOINTS))
     kd = np.broadcast_to(extra.get("action_kd", per_joint(cfg.kd)), (n, NUM_JOINTS))
-    scheduled = "action_kp" in extra or "action_kd" in extra
-    finite = np.isfinite(kp).all(1) & np.isfinite(kd).all(1)  # rows with a non-finite gain are cut later
-    if not (kp[finite] > 0).all():
-        where = ("action_kp.* has a row with kp <= 0 (pure torque or damping commands cannot be stored as "
-                 "position targets)") if "action_kp" in extra else "every joint's --kp must be positive"
-        raise UserError(f"{kinds} columns are folded into the position targets through kp: {where}")
-    if (kd[finite] < 0).any():
-        raise UserError("action_kd.* has negative gains")
-    with np.errstate(invalid="ignore", divide="ignore"):
-        out = action + (kd * extra.get("action_vel", 0.0) + extra.get("action_torque", 0.0)) / kp
-    if scheduled:
-        out = np.concatenate([out, kp, kd], axis=1)
-    return out, list(extra)
+    feedforward = kd * extra.get("action_vel", 0.0) + extra.get("action_torque", 0.0)
+    if "action_kp" in extra or "action_kd" in extra:
+        with np.errstate(invalid="ignore"):  # rows with a non-finite value are cut later
+            if (kp < 0).any() or (kd < 0).any():
+                raise UserError(f"{kinds}: a gain sent with a command is negative")
+        return np.concatenate([action, kp, kd, feedforward], axis=1), list(extra)
+    if not (kp > 0).all():
+        raise UserError(f"{kinds} columns are folded into the position targets through kp: every joint's "
+                        "--kp must be positive (the gains the controller uses most)")
+    return action + feedforward / kp, list(extra)
 
 
 def _reorder_legs(cols: dict[str, np.ndarray], order: tuple[str, ...]) -> dict[str, np.ndarray]:

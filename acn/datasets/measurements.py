@@ -21,6 +21,7 @@ import numpy as np
 from acn.datasets import schema
 from acn.datasets.reader import read_columns, read_info
 from acn.errors import UserError
+from acn.toolkit.actuation import position_targets
 from acn.toolkit.backends import SimConfig
 from acn.toolkit.state import ACTION_DIM, GROUPS, SLICES, STATE_NAMES
 
@@ -38,7 +39,7 @@ class Measurements:
     """N transitions (float64); ``state`` and ``next_state`` hold NaN in missing channels."""
 
     state: np.ndarray        # (N, 43) s_t
-    action: np.ndarray       # (N, 12) a_t; (N, 36) with the gains sent with it (``SimConfig.gains_per_step``)
+    action: np.ndarray       # (N, 12) a_t; (N, 48) with the gains and feedforward sent with it (``SimConfig.gains_per_step``)
     next_state: np.ndarray   # (N, 43) s_{t+1}
     effort: np.ndarray       # (N, 12) applied joint torque, N m (NaN if not logged)
     episode: np.ndarray      # (N,) int, rows of one episode are consecutive control steps
@@ -54,8 +55,11 @@ class Measurements:
 
     @property
     def targets(self) -> np.ndarray:
-        """(N, 12) the joint targets (or torques) of the actions, without the gains sent with them."""
-        return self.action[:, :ACTION_DIM]
+        """(N, 12) the joint targets (or torques) of the actions. With gains per step, the target at
+        which the PD gives the command's torque (u + f / kp; the joint's angle where kp is 0)."""
+        if self.action.shape[1] == ACTION_DIM:
+            return self.action
+        return position_targets(self.action, self.state[:, SLICES["joint_pos"]])
 
     @property
     def available(self) -> np.ndarray:
@@ -101,17 +105,19 @@ class Measurements:
         return self.height.starts(states, rows, backend, configs,
                                   np.zeros(len(rows), int) if model is None else np.asarray(model))
 
-    def previous_actions(self, rows: np.ndarray, count: int) -> np.ndarray:
-        """(len(rows), count, 12 or 36): the actions of the ``count`` steps before each row, oldest first.
+    def previous_actions(self, rows: np.ndarray, count: int, targets: bool = False) -> np.ndarray:
+        """(len(rows), count, 12 or 48): the actions of the ``count`` steps before each row, oldest
+        first (``targets``: their ``targets``, 12).
 
         Before an episode's first row its first action is repeated. Call it on whole
         measurements (rows of an episode consecutive), not on a ``subset``.
         """
-        out = np.empty((len(rows), count, self.action.shape[1]))
+        action = self.targets if targets else self.action
+        out = np.empty((len(rows), count, action.shape[1]))
         for j in range(count):  # j = 0 is the oldest: ``count`` steps back
             back = count - j
             src = np.maximum(rows - np.minimum(self.frame[rows], back), 0)  # clamped to the episode's start
-            out[:, j] = self.action[src]
+            out[:, j] = action[src]
         return out
 
     def windows(self, horizon: int) -> np.ndarray:
@@ -141,7 +147,7 @@ def load_measurements(path: str | Path, side: str = "source") -> Measurements:
     state, action, next_state = cols[key(schema.STATE)], cols[key(schema.ACTION)], cols[key(schema.NEXT_STATE)]
     if gains:  # the actions carry the gains sent with them (SimConfig.gains_per_step)
         sent = cols[schema.ACTION_GAINS]
-        if not (np.isfinite(sent).all() and (sent >= 0).all()):
+        if not (np.isfinite(sent).all() and (sent[:, :2 * ACTION_DIM] >= 0).all()):
             raise UserError(f"{path} has gains in {schema.ACTION_GAINS} that are negative or not finite")
         action = np.concatenate([action, sent], axis=1)
     effort = cols.get(key(schema.EFFORT), np.full_like(action, np.nan))

@@ -9,9 +9,9 @@ Per frame (one control step t of one episode):
 ``next.observation.state``     s_{t+1} of the source (so the last transition is complete)
 ``next.fallen``                s_{t+1} of the source meets the fall rule
 ``next.done``                  this is the last frame of the episode
-``action.gains``               kp then kd (N m/rad, N m s/rad, 12 each) sent with ``action``, in
-                               logs whose controller sends gains with every command
-                               (``acn.gains_per_step``; imported logs only)
+``action.gains``               kp, kd and a feedforward torque (N m/rad, N m s/rad, N m; 12
+                               each) sent with ``action``, in logs whose controller sends gains
+                               with every command (``acn.gains_per_step``; imported logs only)
 ``target.*``                   the same four columns and ``target.next.fallen`` for the
                                target simulator (paired datasets only); ``target.action``
                                differs from ``action`` only when a corrector is applied
@@ -37,7 +37,7 @@ NEXT_STATE = "next.observation.state"
 NEXT_FALLEN = "next.fallen"
 DONE = "next.done"
 ACTION_GAINS = "action.gains"
-GAIN_NAMES = tuple(f"{g}.{j}" for g in ("kp", "kd") for j in ACTION_NAMES)
+GAIN_NAMES = tuple(f"{g}.{j}" for g in ("kp", "kd", "torque") for j in ACTION_NAMES)
 PER_SIMULATOR = (STATE, ACTION, EFFORT, NEXT_STATE, NEXT_FALLEN)
 
 
@@ -57,7 +57,7 @@ def features(paired: bool, gains: bool = False) -> dict[str, dict]:
         out.update({target_key(k): v for k, v in per_sim.items()})
     out[DONE] = flag
     if gains:
-        out[ACTION_GAINS] = {"dtype": "float32", "shape": (2 * ACTION_DIM,), "names": list(GAIN_NAMES)}
+        out[ACTION_GAINS] = {"dtype": "float32", "shape": (3 * ACTION_DIM,), "names": list(GAIN_NAMES)}
     return out
 
 

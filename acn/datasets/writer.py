@@ -34,8 +34,8 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
 
 def episode_columns(ep: Episode, paired: bool) -> dict[str, np.ndarray]:
-    """The per-frame feature columns of one episode (no index columns); an action 36 wide
-    (targets, kp, kd: ``SimConfig.gains_per_step``) goes into ``action`` and ``action.gains``."""
+    """The per-frame feature columns of one episode (no index columns); an action 48 wide
+    (targets, kp, kd, feedforward: ``SimConfig.gains_per_step``) goes into ``action`` and ``action.gains``."""
     cols: dict[str, np.ndarray] = {}
 
     def put(tr: Trace, prefix: str) -> None:

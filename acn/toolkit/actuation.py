@@ -11,13 +11,15 @@ From the action a_t to the torque on each joint, per physics step (all per joint
    **torque mode**: ``tau_cmd = clip(command, -limit, limit)``;
 4. **motor strength**: the joint receives ``strength * tau_cmd``.
 
-**Gains sent with each command** (``SimConfig.gains_per_step``, a controller that switches its
-legs between stance and swing gains, or any MIT-style command): the action is 36 numbers, the
-target u, then kp_t, kd_t (12 each), and step 3 reads ``tau_cmd = clip(kp_scale kp_t e -
-kd_scale kd_t qdot, ...)``. Latency delays the three streams (kp_t u, kp_t, kd_t) together, so
-a physics step's command is the average of the torque laws in force during it:
-``kp_scale (A - G reading) - kd_scale D qdot`` with A = mean(kp_t u), G = mean(kp_t), D =
-mean(kd_t) (``commands`` returns (A, G, D), 36 columns).
+**Gains sent with each command** (``SimConfig.gains_per_step``: a controller that switches its
+legs between stance and swing gains, an MPC that sends stance legs pure torques with kp 0, any
+MIT-style command): the action is 48 numbers, the target u, kp_t, kd_t and a feedforward torque
+f_t (12 each), and step 3 reads ``tau_cmd = clip(kp_scale kp_t e - kd_scale kd_t qdot + f_t,
+...)`` (the gain scales act on the feedback, not on the feedforward). Latency delays the streams
+together, so a physics step's command is the average of the laws in force during it:
+``kp_scale (A - G reading) - kd_scale D qdot`` with A = mean(kp_t u + f_t / kp_scale), G =
+mean(kp_t), D = mean(kd_t) (``commands`` returns (A, G, D), 36 columns). The dead band acts on
+e = A / G - reading where G > 0 (on the feedforward too, as on a folded target).
 
 With nominal parameters this is exactly ``SimConfig``'s PD law. MuJoCo realises steps 2-4 with
 native actuator parameters when there is no dead band (``Actuation.native``); otherwise, and
@@ -35,6 +37,14 @@ import numpy as np
 
 from acn.toolkit.robot import per_joint
 from acn.toolkit.state import NUM_JOINTS
+
+
+def position_targets(actions: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """(..., 12) position targets of 48-wide actions (u, kp, kd, f; module docstring): the target
+    at which the command's own PD gives its torque, u + f / kp; the joint angle ``q`` where kp is
+    0 (no position loop). What the data checks and the candidate terms read as "the target"."""
+    u, kp, _, f = np.split(actions, 4, axis=-1)
+    return np.where(kp > 0, u + np.divide(f, kp, out=np.zeros_like(f), where=kp > 0), q)
 
 
 @dataclass(frozen=True)
@@ -97,13 +107,13 @@ class Actuation:
     def commands(self, actions: np.ndarray) -> np.ndarray:
         """Per-physics-step commands for consecutive control steps.
 
-        ``actions`` (..., history + K, 12), or 36 wide with the gains: the ``history`` previous
+        ``actions`` (..., history + K, 12), or 48 wide with the gains: the ``history`` previous
         actions, then the K actions to apply. Returns (..., K * substeps, 12), or with the gains
         (..., K * substeps, 36): (A, G, D) of the module docstring.
         """
         if self.scheduled:
-            u, kp, kd = np.split(actions, 3, axis=-1)
-            actions = np.concatenate([kp * u, kp, kd], axis=-1)
+            u, kp, kd, f = np.split(actions, 4, axis=-1)
+            actions = np.concatenate([kp * u + f / self.kp_scale, kp, kd], axis=-1)
         hist = self.history
         if hist == 0 and self.latency == 0:
             return np.repeat(actions, self.substeps, axis=-2)
@@ -122,9 +132,9 @@ class Actuation:
         if self.scheduled:  # kp_t e = A - G reading, with the dead band on e = A / G - reading
             a, g, d = np.split(command, 3, axis=-1)
             reading = q + self.offset
-            if self.deadband.any():
-                e = np.divide(a, g, out=np.array(reading, dtype=float, copy=True), where=g > 0) - reading
-                stiff = g * np.sign(e) * np.maximum(np.abs(e) - self.deadband, 0.0)
+            if self.deadband.any():  # where G = 0 (no position loop) only the feedforward A
+                e = np.divide(a, g, out=np.zeros_like(a), where=g > 0) - reading
+                stiff = np.where(g > 0, g * np.sign(e) * np.maximum(np.abs(e) - self.deadband, 0.0), a)
             else:
                 stiff = a - g * reading
             return self.strength * np.clip(self.kp_scale * stiff - self.kd_scale * d * qd, -self.limit, self.limit)

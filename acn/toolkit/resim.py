@@ -78,7 +78,7 @@ class Resimulator:
         """Predict K control steps from each of N states.
 
         ``states`` (N, 43) recorded s_t; ``actions`` (N, K, A) or (N, A) the actions from t on
-        (A = ``SimConfig.action_dim``: 12, or 36 with the gains); ``previous`` (N, P, A) the actions
+        (A = ``SimConfig.action_dim``: 12, or 48 with the gains); ``previous`` (N, P, A) the actions
         before t, oldest first (optional); ``model`` (N,) index into the models per row (default:
         model 0 for every row).
         """

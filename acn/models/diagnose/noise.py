@@ -45,7 +45,7 @@ def window_action(d: Measurements, rows: np.ndarray, unit: int = 1) -> np.ndarra
 def joint_library(d: Measurements, rows: np.ndarray, unit: int = 1) -> np.ndarray:
     """(N, 12, F) candidate terms per joint (module docstring)."""
     s, a = d.state[rows], window_action(d, rows, unit)
-    prev = d.previous_actions(rows, 1)[:, 0, :NUM_JOINTS]
+    prev = d.previous_actions(rows, 1, targets=True)[:, 0]
     q, qd = s[:, SLICES["joint_pos"]], s[:, SLICES["joint_vel"]]
     contact = np.nan_to_num(np.repeat(s[:, SLICES["contact"]], 3, axis=1))
     err = a - q
@@ -61,7 +61,7 @@ def body_library(d: Measurements, rows: np.ndarray, unit: int = 1) -> np.ndarray
     """(N, F): [1, state without x, y, yaw, a_t, a_t - a_{t-1}] (a_t: over the diagnosis step)."""
     keep = [i for i, n in enumerate(STATE_NAMES) if n not in _SKIP]
     a = window_action(d, rows, unit)
-    prev = d.previous_actions(rows, 1)[:, 0, :NUM_JOINTS]
+    prev = d.previous_actions(rows, 1, targets=True)[:, 0]
     return np.nan_to_num(np.concatenate([np.ones((len(rows), 1)), d.state[rows][:, keep], a, a - prev], axis=1))
 
 

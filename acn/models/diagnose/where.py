@@ -15,7 +15,7 @@ import numpy as np
 from acn.models.diagnose.compare import Comparison
 from acn.models.diagnose.problem import Problem
 from acn.toolkit.backends.base import pd_torque
-from acn.toolkit.state import FOOT_NAMES, JOINT_NAMES, NUM_JOINTS, SLICES
+from acn.toolkit.state import FOOT_NAMES, JOINT_NAMES, SLICES
 
 TREND = 0.3  # rank correlation from which a trend is worth saying
 
@@ -83,12 +83,12 @@ def breakdown(problem: Problem, comparison: Comparison) -> dict:
     q = d.state[rows][:, SLICES["joint_pos"]]
     qd = d.state[rows][:, SLICES["joint_vel"]]
     a = d.action[rows]
-    prev = d.previous_actions(rows, 1)[:, 0, :NUM_JOINTS]
+    prev = d.previous_actions(rows, 1, targets=True)[:, 0]
     effort = d.effort[rows]
     if not np.isfinite(effort).all():
         c = problem.control
         effort = a if c.action_mode == "torque" else pd_torque(a, q, qd, c)
-    against = {"joint_speed": np.abs(qd), "torque": np.abs(effort), "action_change": np.abs(a[:, :NUM_JOINTS] - prev)}
+    against = {"joint_speed": np.abs(qd), "torque": np.abs(effort), "action_change": np.abs(d.targets[rows] - prev)}
     trends = {k: {"rank_correlation": _spearman(v.ravel(), je.ravel()), "bins": _binned(v.ravel(), je.ravel())}
               for k, v in against.items()}
 

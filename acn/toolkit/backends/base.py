@@ -76,8 +76,8 @@ class SimConfig:
     torque_limit: float = 33.5    # N m, applied to every joint in both modes
     params: ModelParams = field(default_factory=ModelParams)
     # The controller sends its gains with every command (position mode; ``acn.toolkit.actuation``):
-    # an action is then 36 numbers, the 12 targets, the 12 kp and the 12 kd in force with them
-    # (kp, kd above are then only recorded, not used by the law).
+    # an action is then 48 numbers, the 12 targets, the 12 kp, the 12 kd and the 12 feedforward
+    # torques in force with them (kp, kd above are then only recorded, not used by the law).
     gains_per_step: bool = False
 
     def __post_init__(self) -> None:
@@ -89,8 +89,9 @@ class SimConfig:
 
     @property
     def action_dim(self) -> int:
-        """Numbers per action: 12 targets or torques, 36 with the gains (``gains_per_step``)."""
-        return 3 * ACTION_DIM if self.gains_per_step else ACTION_DIM
+        """Numbers per action: 12 targets or torques; 48 with the gains and feedforward torques
+        (``gains_per_step``)."""
+        return 4 * ACTION_DIM if self.gains_per_step else ACTION_DIM
 
     def validate(self) -> None:
         if self.action_mode not in ACTION_MODES:
@@ -107,13 +108,13 @@ class SimConfig:
 
 
 def pd_torque(target: np.ndarray, q: np.ndarray, qd: np.ndarray, cfg: SimConfig) -> np.ndarray:
-    """The position-mode control law, N m (see module docstring); ``target`` (..., 12), or 36 wide
-    with the gains sent with it (``SimConfig.gains_per_step``)."""
-    if target.shape[-1] == 3 * NUM_JOINTS:
-        target, kp, kd = np.split(target, 3, axis=-1)
+    """The position-mode control law, N m (see module docstring); ``target`` (..., 12), or 48 wide
+    with the gains and feedforward sent with it (``SimConfig.gains_per_step``)."""
+    if target.shape[-1] == 4 * NUM_JOINTS:
+        target, kp, kd, f = np.split(target, 4, axis=-1)
     else:
-        kp, kd = per_joint(cfg.kp), per_joint(cfg.kd)
-    return np.clip(kp * (target - q) - kd * qd, -cfg.torque_limit, cfg.torque_limit)
+        kp, kd, f = per_joint(cfg.kp), per_joint(cfg.kd), 0.0
+    return np.clip(kp * (target - q) - kd * qd + f, -cfg.torque_limit, cfg.torque_limit)
 
 
 def physics_hz_for(control_hz: int, physics_hz: int | None = None) -> int:
@@ -224,7 +225,7 @@ class Backend(ABC):
         self._state = None
 
     def step(self, action: np.ndarray) -> np.ndarray:
-        """Advance one control step under ``action`` (12,), or (36,) with the gains sent with it
+        """Advance one control step under ``action`` (12,), or (48,) with the gains sent with it
         (``SimConfig.gains_per_step``); return mean applied torque (12,), N m.
 
         Raises ``SimulationDiverged`` if the simulator produced an absurd state.
