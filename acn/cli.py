@@ -589,13 +589,10 @@ def import_main(argv: list[str] | None = None) -> int:
         print(f"read {r.rows} rows: {r.transitions} transitions in {r.episodes} episode(s); cut {r.cut_nonfinite} "
               f"row(s) with non-finite values, split at {r.time_breaks} wrong time step(s), dropped "
               f"{r.dropped_short} one-row segment(s)")
-        if {"action_kp", "action_kd"} & set(r.folded):
-            print(f"gains per row ({', '.join(r.folded)}): stored with the actions (action.gains: kp, kd and the "
-                  "feedforward kd dq_des + tau_ff); the model's PD uses each row's (--kp or --kd only for a kind "
+        if r.hybrid:
+            print(f"a hybrid command ({', '.join(r.hybrid)}): stored with the actions (action.hybrid: kp, kd and the "
+                  "feedforward kd dq_des + tau_ff), which the model's PD runs as sent (--kp, --kd for a kind of gain "
                   "the log does not send)")
-        elif r.folded:
-            print(f"a hybrid command ({', '.join(r.folded)}): stored as the position targets that drive the PD the "
-                  "same way, q_des + (kd dq_des + tau_ff) / kp")
         if args.physics_hz is None and (hz := physics_hz_for(args.control_hz)) != PHYSICS_HZ:
             print(f"the model simulates it at {hz} Hz, the multiple of {args.control_hz} Hz nearest {PHYSICS_HZ} Hz "
                   "(--physics-hz sets it)")

@@ -44,7 +44,12 @@ runs kp (q_des - q) + kd (dq_des - qd) + tau_ff), logged as ``action.*``, ``acti
 With ``--stance-gains KP,KD``, the controllers send their gains with every command and switch
 each leg between the nominal gains (swing) and KP, KD times them (stance) on a gait clock
 (``robot_log.LogSpec.stance_gains``), logged as ``action_kp.*`` and ``action_kd.*``, which
-acn-import folds into the position targets at each row's state.
+acn-import stores with the actions (the model's PD uses each row's gains).
+
+With ``--stance-torque``, the controllers are MPC-style on the same clock: legs in stance get kp
+0 and a torque computed from the noisy readings, legs in swing the nominal PD
+(``robot_log.LogSpec.stance_torque``), logged with ``action_kp.*``, ``action_kd.*`` and
+``action_torque.*``.
 
 With ``--pairs``, logs with TWO hidden effects instead (``--auto``), one line each and:
 
@@ -191,7 +196,8 @@ def log_spec(args, seed: int, over: dict) -> LogSpec:
                    drop=dropped(args), control_hz=args.control_hz, torque_control=args.torque_control,
                    stale=args.stale, glitches=args.glitches, jitter=args.jitter,
                    velocity_filter=args.velocity_filter, feedforward=args.feedforward,
-                   stance_gains=args.stance_gains, **{"controller": "sines", **over})
+                   stance_gains=args.stance_gains, stance_torque=args.stance_torque,
+                   **{"controller": "sines", **over})
 
 
 def import_config(args) -> ImportConfig:
@@ -264,12 +270,16 @@ def main() -> None:
                     help="hybrid commands: a velocity target and a feedforward torque beside the position target")
     ap.add_argument("--stance-gains", type=lambda v: tuple(float(x) for x in v.split(",")), default=None,
                     metavar="KP,KD", help="gains per row: legs in stance run KP, KD times the nominal gains")
+    ap.add_argument("--stance-torque", action="store_true",
+                    help="MPC-style: legs in stance get kp 0 and a torque from the readings, legs in swing the PD")
     ap.add_argument("--glitches", type=float, default=0.0,
                     help="share of rows with one reading off by robot_log.GLITCH x its noise (a corrupted packet)")
     args = ap.parse_args()
-    if (args.feedforward or args.stance_gains) and args.torque_control:
-        ap.error("--feedforward and --stance-gains complete a position target; --torque-control logs torques: "
-                 "choose one")
+    if (args.feedforward or args.stance_gains or args.stance_torque) and args.torque_control:
+        ap.error("--feedforward, --stance-gains and --stance-torque complete a position target; --torque-control "
+                 "logs torques: choose one")
+    if args.stance_torque and (args.feedforward or args.stance_gains):
+        ap.error("--stance-torque sends its own gains and torques: not with --feedforward or --stance-gains")
     if args.stance_gains is not None and len(args.stance_gains) != 2:
         ap.error("--stance-gains takes two multiples, KP,KD")
     root = Path(tempfile.mkdtemp())

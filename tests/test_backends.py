@@ -153,13 +153,13 @@ def test_position_mode_torque_is_the_pd_law(name):
 
 @pytest.mark.parametrize("name", BACKENDS)
 def test_gains_sent_with_each_command_drive_the_pd(name):
-    """With ``gains_per_step`` an action is (targets, kp, kd, feedforward): at rest the first
+    """With ``hybrid`` an action is (targets, kp, kd, feedforward): at rest the first
     physics step's torque is kp_t (target - q) - kd_t qdot + f_t with what was sent (kp_t 0: the
     feedforward alone); sending the config's own gains and no feedforward every step is the plain
     PD (same trajectory under latency, strength, offsets, gain scales)."""
     kp_t = np.linspace(0.0, 400.0, 12)  # the stiffest joints reach the torque limit
     f_t = np.linspace(-3.0, 3.0, 12)
-    with make_backend(name, SimConfig(substeps=1, gains_per_step=True)) as sim:
+    with make_backend(name, SimConfig(substeps=1, hybrid=True)) as sim:
         s = sim.reset()
         target = s[SLICES["joint_pos"]] + 0.1
         tau = sim.step(np.concatenate([target, kp_t, np.full(12, 2.0), f_t]))
@@ -170,7 +170,7 @@ def test_gains_sent_with_each_command_drive_the_pd(name):
     params = ModelParams(latency=0.013, motor_strength=0.8, encoder_offset=0.02, kp_scale=0.7, kd_scale=1.3)
     runs = []
     for gains in (False, True):
-        with make_backend(name, SimConfig(params=params, gains_per_step=gains)) as sim:
+        with make_backend(name, SimConfig(params=params, hybrid=gains)) as sim:
             s, trot, states = sim.reset(), Trot(), []
             for k in range(15):
                 a = trot(s, 0.02 * k)
@@ -180,7 +180,7 @@ def test_gains_sent_with_each_command_drive_the_pd(name):
         runs.append(np.array(states))
     np.testing.assert_allclose(runs[1], runs[0], atol=1e-8)
     with pytest.raises(ValueError, match="position mode"):
-        SimConfig(action_mode="torque", gains_per_step=True).validate()
+        SimConfig(action_mode="torque", hybrid=True).validate()
 
 
 @pytest.mark.parametrize("name", BACKENDS)

@@ -322,7 +322,7 @@ def test_a_torque_controlled_200_hz_noisy_log_finds_the_damping(tmp_path):
 
 def test_a_controller_that_switches_gains_by_gait_phase_has_its_damping_found(tmp_path):
     """A controller that sends stance gains (0.5 kp, 1.5 kd) to the legs in stance and the nominal
-    ones in swing, with every command: the model's PD runs each row's gains (``gains_per_step``),
+    ones in swing, with every command: the model's PD runs each row's gains (``hybrid``),
     and the hidden damping is named, fitted and removed. Folded into targets for the imported
     gains at each row's state (before), it came out 0.37 and 0.32 on seeds 31 and 32 (now 0.52,
     0.51) and latency 13.7 / 13.5 ms for 15 (now 14.8 / 15.3)."""
@@ -332,7 +332,7 @@ def test_a_controller_that_switches_gains_by_gait_phase_has_its_damping_found(tm
     write_log(tmp_path / "log.csv", LogSpec(noise=1.0, seed=31, stance_gains=(0.5, 1.5), spec_edit=damping))
     path, _ = import_log(tmp_path / "log.csv", tmp_path / "robot", ImportConfig(50, 60.0, 1.5, 33.5))
     m = load_measurements(path)
-    assert m.control.gains_per_step and m.action.shape[1] == 48
+    assert m.control.hybrid and m.action.shape[1] == 48
     d = diagnose(m, Model.parse("mujoco"), replace(FAST, finest="shared"), add=["joint_damping"])
     assert d.ranking[0].name == "joint_damping" and d.verdict == "effect", d.reason
     assert close(d.added[0].fit.values["value"], 0.5, rel=0.1)
@@ -348,7 +348,7 @@ def test_an_mpc_style_controller_that_sends_stance_legs_pure_torques_has_its_lat
 
     write_log(tmp_path / "log.csv", LogSpec(noise=1.0, seed=31, stance_torque=True, latency_steps=15))
     path, report = import_log(tmp_path / "log.csv", tmp_path / "robot", ImportConfig(50, 60.0, 1.5, 33.5))
-    assert report.findings == [] and set(report.folded) == {"action_torque", "action_kp", "action_kd"}
+    assert report.findings == [] and set(report.hybrid) == {"action_torque", "action_kp", "action_kd"}
     m = load_measurements(path)
     assert m.action.shape[1] == 48 and (m.action[:, 12:24] == 0).any()  # kp 0 on the stance legs
     d = diagnose(m, Model.parse("mujoco"), replace(FAST, finest="shared"), add=["actuator_latency"])

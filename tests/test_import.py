@@ -80,23 +80,27 @@ def test_a_control_rate_that_does_not_divide_1_khz_gets_the_nearest_physics_rate
     assert not (tmp_path / "e").exists()
 
 
-def test_a_hybrid_command_is_folded_into_the_position_targets(tmp_path, acn):
-    """An MIT-style command (q_des, dq_des, tau_ff, PD gains per joint type) becomes the position
-    target that drives the PD the same way; a partial set of columns is refused in one line."""
+def test_a_hybrid_command_is_stored_whole(tmp_path, acn):
+    """An MIT-style command (q_des, dq_des, tau_ff, PD gains per joint type) is stored whole: the
+    actions are 48 wide (q_des, kp, kd, kd dq_des + tau_ff), and the target the checks read is the
+    one that drives the PD the same way; a partial set of columns is refused in one line."""
     kp, kd = (100.0, 80.0, 50.0) * 4, (2.0, 1.5, 1.0) * 4
     write_log(tmp_path / "log.csv", LogSpec(seconds=1.0, episodes=2, seed=5, feedforward=True, kp=kp, kd=kd))
     r = acn("import", str(tmp_path / "log.csv"), "--out", str(tmp_path / "ds"), "--control-hz", "50",
             "--kp", "100,80,50", "--kd", "2,1.5,1", "--torque-limit", "33.5")
-    assert r.returncode == 0 and "a hybrid command (action_vel, action_torque)" in r.stdout, r.stdout + r.stderr
+    assert r.returncode == 0 and "a hybrid command (action_vel, action_torque): stored with" in r.stdout, \
+        r.stdout + r.stderr
     table = pacsv.read_csv(str(tmp_path / "log.csv")).to_pydict()
     first = slice(0, 49)
     cols = lambda kind: np.column_stack([table[f"{kind}.{j}"][first] for j in JOINT_NAMES])  # noqa: E731
     want = cols("action") + (np.array(kd) * cols("action_vel") + cols("action_torque")) / np.array(kp)
     m = load_measurements(tmp_path / "ds")
-    np.testing.assert_allclose(m.action[first], want, atol=1e-5)
+    np.testing.assert_allclose(m.targets[first], want, atol=1e-5)
+    np.testing.assert_allclose(m.action[first, 36:], np.array(kd) * cols("action_vel") + cols("action_torque"),
+                               atol=1e-5)
+    assert m.control.hybrid and m.action.shape[1] == 48
     assert np.abs(want - cols("action")).max() > 0.05  # the feedforward matters
-    assert load(tmp_path / "ds").meta.info["acn"]["import"]["folded_into_position_targets"] == ["action_vel",
-                                                                                                "action_torque"]
+    assert load(tmp_path / "ds").meta.info["acn"]["import"]["hybrid_command"] == ["action_vel", "action_torque"]
     table.pop("action_torque.RL_calf")
     pacsv.write_csv(pa.table(table), str(tmp_path / "partial.csv"))
     r = acn("import", str(tmp_path / "partial.csv"), "--out", str(tmp_path / "p"), *CONTROL)
@@ -106,24 +110,23 @@ def test_a_hybrid_command_is_folded_into_the_position_targets(tmp_path, acn):
 
 def test_gains_sent_with_each_command_are_stored_with_the_actions(tmp_path, acn):
     """A controller that switches its legs between swing and stance gains sends them with every
-    command (action_kp.*, action_kd.*): they are stored beside the targets (action.gains) and the
+    command (action_kp.*, action_kd.*): they are stored beside the targets (action.hybrid) and the
     measurements' actions are 48 wide (targets, kp, kd, feedforward), which the model's PD uses
     step by step; gains of one kind for some joints only, or a negative gain, are refused in one
     line."""
     write_log(tmp_path / "log.csv", LogSpec(seconds=1.0, episodes=2, seed=5, stance_gains=(0.5, 1.5), noise=1.0))
     r = acn("import", str(tmp_path / "log.csv"), "--out", str(tmp_path / "ds"), *CONTROL)
-    assert r.returncode == 0 and "gains per row (action_kp, action_kd): stored with the actions" in r.stdout, \
+    assert r.returncode == 0 and "a hybrid command (action_kp, action_kd): stored with" in r.stdout, \
         r.stdout + r.stderr
-    assert "a hybrid command" not in r.stdout  # no velocity target or feedforward to fold
     table = pacsv.read_csv(str(tmp_path / "log.csv")).to_pydict()
     first = slice(0, 49)
     cols = lambda kind: np.column_stack([table[f"{kind}.{j}"][first] for j in JOINT_NAMES])  # noqa: E731
     kp_t, kd_t = cols("action_kp"), cols("action_kd")
     assert set(np.unique(kp_t)) == {30.0, 60.0} and set(np.unique(kd_t)) == {1.5, 2.25}  # swing, stance
     m = load_measurements(tmp_path / "ds")
-    assert m.control.gains_per_step and m.action.shape[1] == 48
+    assert m.control.hybrid and m.action.shape[1] == 48
     np.testing.assert_allclose(m.action[first], np.hstack([cols("action"), kp_t, kd_t, 0 * kp_t]), atol=1e-5)
-    assert load(tmp_path / "ds").meta.info["acn"]["gains_per_step"] is True
+    assert load(tmp_path / "ds").meta.info["acn"]["hybrid_actions"] is True
     for dropped, message in ((["action_kp.FR_hip"], "action_kp.FR_hip"), ([], "negative")):
         bad = {k: v for k, v in table.items() if k not in dropped}
         if not dropped:

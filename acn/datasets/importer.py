@@ -15,9 +15,9 @@ converted. A map file renames and scales other columns onto these names:
 value > threshold, for a log of foot forces). Channels the log lacks are stored as NaN and listed in the
 metadata (``missing_channels``); joint positions and actions are the minimum. A hybrid
 (MIT-style) command, ``action_vel.<joint>`` (rad/s) and ``action_torque.<joint>`` (N m) beside the
-position target, is folded into the target that drives the PD law the same way (``_fold_hybrid``).
-Gains sent with each command (``action_kp.<joint>``, ``action_kd.<joint>``) are stored with the
-actions (``action.gains``), and the model's PD uses them step by step (``gains_per_step``).
+position target, and gains sent with each command (``action_kp.<joint>``, ``action_kd.<joint>``)
+are stored with the actions (``action.hybrid``: kp, kd and the feedforward kd dq_des + tau_ff),
+and the model's PD runs them as sent (``_hybrid_actions``, ``SimConfig.hybrid``).
 
 Transitions: s_{t+1} is the next row of the same episode. A row with a non-finite value, or a
 time step that differs from the control period by more than ``dt_tolerance`` of it, ends a
@@ -101,7 +101,7 @@ class ImportReport:
     missing: list[str]
     findings: list[checks.Finding]
     step_spread: float = 0.0  # 99th percentile of |time step / control period - 1| within episodes
-    folded: list[str] = field(default_factory=list)  # hybrid command columns folded into the position targets
+    hybrid: list[str] = field(default_factory=list)  # the kinds of hybrid command columns (stored with the actions)
     quaternion: bool = False  # the trunk's orientation came from base_quat_* (converted to Euler angles)
     partial_effort: list[str] = field(default_factory=list)  # effort.* columns of fewer than 12 joints: not stored
 
@@ -288,7 +288,7 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
         raise UserError(f"{log} has fewer than 2 rows")
     missing = [c for c in STATE_NAMES if c not in cols]
     state = _to_body_frame(np.column_stack([cols.get(c, np.full(n, np.nan)) for c in STATE_NAMES]), cfg)
-    action, folded = _fold_hybrid(np.column_stack([cols[c] for c in ACTION_COLUMNS]), cols, cfg, state)
+    action, hybrid = _hybrid_actions(np.column_stack([cols[c] for c in ACTION_COLUMNS]), cols, cfg, state)
     has_effort = all(c in cols for c in EFFORT_COLUMNS)
     partial_effort = [c for c in EFFORT_COLUMNS if c in cols] if not has_effort else []
     effort = np.column_stack([cols[c] for c in EFFORT_COLUMNS]) if has_effort else np.full((n, 12), np.nan)
@@ -314,7 +314,7 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
         "torque_limit": cfg.torque_limit, "model_params": ModelParams().as_json(), "policy": "log",
         "seed": None, "corrector": None, "state_names": list(STATE_NAMES), "action_names": list(ACTION_NAMES),
         "fall_rule": FALL_RULE, "missing_channels": missing, "effort_logged": has_effort,
-        "gains_per_step": action.shape[1] > NUM_JOINTS,
+        "hybrid_actions": action.shape[1] > NUM_JOINTS,
     }
     writer = DatasetWriter(out, fps=cfg.control_hz, paired=False, task=f"log {log.name}", acn_meta=meta,
                            overwrite=overwrite)
@@ -339,10 +339,10 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
                               cut_nonfinite=int((~good).sum()), time_breaks=reasons.get("split_time_gap", 0),
                               dropped_short=dropped, missing=missing,
                               findings=checks.check(written, period, cfg.action_mode), step_spread=spread,
-                              folded=folded, quaternion=quaternion, partial_effort=partial_effort)
+                              hybrid=hybrid, quaternion=quaternion, partial_effort=partial_effort)
         writer.meta.info[schema.ACN_KEY]["import"] = {"file": log.name, "rows": n, "transitions": transitions,
                           "rows_cut_nonfinite": report.cut_nonfinite, "time_step_breaks": report.time_breaks,
-                          "time_step_spread": round(spread, 4), "folded_into_position_targets": folded,
+                          "time_step_spread": round(spread, 4), "hybrid_command": hybrid,
                           "segments_too_short": dropped, "dt_tolerance": cfg.dt_tolerance,
                           "linvel_frame": cfg.linvel_frame, "angvel_frame": cfg.angvel_frame,
                           "leg_order": list(cfg.leg_order), "shift_actions": cfg.shift_actions,
@@ -393,17 +393,17 @@ def _to_body_frame(state: np.ndarray, cfg: ImportConfig) -> np.ndarray:
     return out
 
 
-def _fold_hybrid(action: np.ndarray, cols: dict[str, np.ndarray], cfg: ImportConfig,
+def _hybrid_actions(action: np.ndarray, cols: dict[str, np.ndarray], cfg: ImportConfig,
                  state: np.ndarray) -> tuple[np.ndarray, list[str]]:
     """The actions for the model's PD law from a hybrid command, and which kinds
     (``HYBRID_COLUMNS``) the log had (each kind all 12 joints or none).
 
-    The motor runs kp (q_des - q) + kd (dq_des - qd) + tau_ff. With the imported gains that equals
-    kp (u - q) - kd qd at every state for the target u = q_des + (kd dq_des + tau_ff) / kp: the
-    actions are those targets (N, 12). With gains per row (``action_kp.*``, ``action_kd.*``; the
-    other kind the imported gains) they are (N, 48): q_des, kp_t, kd_t and the feedforward
-    kd_t dq_des + tau_ff, which the model's PD uses step by step (``SimConfig.gains_per_step``;
-    a row may have kp_t = 0, a pure torque or damping command). Exact either way."""
+    The motor runs kp (q_des - q) + kd (dq_des - qd) + tau_ff: the actions are (N, 48), q_des,
+    kp_t, kd_t (each row's where logged, else the imported gains) and the feedforward kd_t dq_des +
+    tau_ff, which the model's PD runs as such (``SimConfig.hybrid``; a row may have kp_t = 0, a
+    pure torque or damping command). Exact, with the gain scales on the feedback only and the dead
+    band on q_des - q (folding the feedforward into the target, q_des + f / kp, made a ``pd_gains``
+    fit scale it and the dead band act on it)."""
     extra = {}
     for kind, columns in HYBRID_COLUMNS.items():
         have = [c for c in columns if c in cols]
@@ -423,15 +423,10 @@ def _fold_hybrid(action: np.ndarray, cols: dict[str, np.ndarray], cfg: ImportCon
     kp = np.broadcast_to(extra.get("action_kp", per_joint(cfg.kp)), (n, NUM_JOINTS))
     kd = np.broadcast_to(extra.get("action_kd", per_joint(cfg.kd)), (n, NUM_JOINTS))
     feedforward = kd * extra.get("action_vel", 0.0) + extra.get("action_torque", 0.0)
-    if "action_kp" in extra or "action_kd" in extra:
-        with np.errstate(invalid="ignore"):  # rows with a non-finite value are cut later
-            if (kp < 0).any() or (kd < 0).any():
-                raise UserError(f"{kinds}: a gain sent with a command is negative")
-        return np.concatenate([action, kp, kd, feedforward], axis=1), list(extra)
-    if not (kp > 0).all():
-        raise UserError(f"{kinds} columns are folded into the position targets through kp: every joint's "
-                        "--kp must be positive (the gains the controller uses most)")
-    return action + feedforward / kp, list(extra)
+    with np.errstate(invalid="ignore"):  # rows with a non-finite value are cut later
+        if (kp < 0).any() or (kd < 0).any():
+            raise UserError(f"{kinds}: a gain sent with a command is negative")
+    return np.concatenate([action, kp, kd, feedforward], axis=1), list(extra)
 
 
 def _reorder_legs(cols: dict[str, np.ndarray], order: tuple[str, ...]) -> dict[str, np.ndarray]:

@@ -39,7 +39,7 @@ class Measurements:
     """N transitions (float64); ``state`` and ``next_state`` hold NaN in missing channels."""
 
     state: np.ndarray        # (N, 43) s_t
-    action: np.ndarray       # (N, 12) a_t; (N, 48) with the gains and feedforward sent with it (``SimConfig.gains_per_step``)
+    action: np.ndarray       # (N, 12) a_t; (N, 48) with the gains and feedforward sent with it (``SimConfig.hybrid``)
     next_state: np.ndarray   # (N, 43) s_{t+1}
     effort: np.ndarray       # (N, 12) applied joint torque, N m (NaN if not logged)
     episode: np.ndarray      # (N,) int, rows of one episode are consecutive control steps
@@ -140,15 +140,15 @@ def load_measurements(path: str | Path, side: str = "source") -> Measurements:
     if side == "target" and not acn["paired"]:
         raise UserError(f"{path} is not paired: it has no target side")
     key = (lambda k: k) if side == "source" else schema.target_key
-    gains = bool(acn.get("gains_per_step")) and side == "source"
+    hybrid = bool(acn.get("hybrid_actions")) and side == "source"
     cols, _ = read_columns(path, [key(schema.STATE), key(schema.ACTION), key(schema.NEXT_STATE)]
-                           + ["episode_index", "frame_index"] + [schema.ACTION_GAINS] * gains,
+                           + ["episode_index", "frame_index"] + [schema.ACTION_HYBRID] * hybrid,
                            optional=(key(schema.EFFORT),))
     state, action, next_state = cols[key(schema.STATE)], cols[key(schema.ACTION)], cols[key(schema.NEXT_STATE)]
-    if gains:  # the actions carry the gains sent with them (SimConfig.gains_per_step)
-        sent = cols[schema.ACTION_GAINS]
+    if hybrid:  # the actions carry the gains and feedforward sent with them (SimConfig.hybrid)
+        sent = cols[schema.ACTION_HYBRID]
         if not (np.isfinite(sent).all() and (sent[:, :2 * ACTION_DIM] >= 0).all()):
-            raise UserError(f"{path} has gains in {schema.ACTION_GAINS} that are negative or not finite")
+            raise UserError(f"{path} has gains in {schema.ACTION_HYBRID} that are negative or not finite")
         action = np.concatenate([action, sent], axis=1)
     effort = cols.get(key(schema.EFFORT), np.full_like(action, np.nan))
     missing = list(acn.get("missing_channels", []))
@@ -158,7 +158,7 @@ def load_measurements(path: str | Path, side: str = "source") -> Measurements:
     if not np.isfinite(action).all():
         raise UserError(f"{path} has non-finite actions")
     control = SimConfig(physics_dt=acn["physics_dt"], substeps=acn["substeps"], action_mode=acn["action_mode"],
-                        kp=acn["kp"], kd=acn["kd"], torque_limit=acn["torque_limit"], gains_per_step=gains)
+                        kp=acn["kp"], kd=acn["kd"], torque_limit=acn["torque_limit"], hybrid=hybrid)
     who = (acn.get(side) or {}).get("simulator") or side
     return Measurements(state, action, next_state, effort, cols["episode_index"].astype(np.int64),
                         cols["frame_index"].astype(np.int64), control, acn,

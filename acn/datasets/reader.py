@@ -40,7 +40,7 @@ def read_info(path: str | Path) -> dict:
 
 
 _WIDTH = {schema.STATE: STATE_DIM, schema.NEXT_STATE: STATE_DIM, schema.ACTION: ACTION_DIM, schema.EFFORT: ACTION_DIM,
-          schema.ACTION_GAINS: 3 * ACTION_DIM}
+          schema.ACTION_HYBRID: 3 * ACTION_DIM}
 INDEX_COLUMNS = ("episode_index", "frame_index", "timestamp")
 
 

@@ -9,9 +9,9 @@ Per frame (one control step t of one episode):
 ``next.observation.state``     s_{t+1} of the source (so the last transition is complete)
 ``next.fallen``                s_{t+1} of the source meets the fall rule
 ``next.done``                  this is the last frame of the episode
-``action.gains``               kp, kd and a feedforward torque (N m/rad, N m s/rad, N m; 12
+``action.hybrid``               kp, kd and a feedforward torque (N m/rad, N m s/rad, N m; 12
                                each) sent with ``action``, in logs whose controller sends gains
-                               with every command (``acn.gains_per_step``; imported logs only)
+                               with every command (``acn.hybrid_actions``; imported logs only)
 ``target.*``                   the same four columns and ``target.next.fallen`` for the
                                target simulator (paired datasets only); ``target.action``
                                differs from ``action`` only when a corrector is applied
@@ -36,8 +36,8 @@ EFFORT = "observation.effort"
 NEXT_STATE = "next.observation.state"
 NEXT_FALLEN = "next.fallen"
 DONE = "next.done"
-ACTION_GAINS = "action.gains"
-GAIN_NAMES = tuple(f"{g}.{j}" for g in ("kp", "kd", "torque") for j in ACTION_NAMES)
+ACTION_HYBRID = "action.hybrid"
+HYBRID_NAMES = tuple(f"{g}.{j}" for g in ("kp", "kd", "torque") for j in ACTION_NAMES)
 PER_SIMULATOR = (STATE, ACTION, EFFORT, NEXT_STATE, NEXT_FALLEN)
 
 
@@ -45,9 +45,9 @@ def target_key(key: str) -> str:
     return TARGET_PREFIX + key
 
 
-def features(paired: bool, gains: bool = False) -> dict[str, dict]:
-    """LeRobot feature spec (float32 vectors with channel names, bool flags); ``gains``: with
-    ``action.gains`` (unpaired only)."""
+def features(paired: bool, hybrid: bool = False) -> dict[str, dict]:
+    """LeRobot feature spec (float32 vectors with channel names, bool flags); ``hybrid``: with
+    ``action.hybrid`` (unpaired only)."""
     state = {"dtype": "float32", "shape": (STATE_DIM,), "names": list(STATE_NAMES)}
     joint = {"dtype": "float32", "shape": (ACTION_DIM,), "names": list(ACTION_NAMES)}
     flag = {"dtype": "bool", "shape": (1,), "names": None}
@@ -56,8 +56,8 @@ def features(paired: bool, gains: bool = False) -> dict[str, dict]:
     if paired:
         out.update({target_key(k): v for k, v in per_sim.items()})
     out[DONE] = flag
-    if gains:
-        out[ACTION_GAINS] = {"dtype": "float32", "shape": (3 * ACTION_DIM,), "names": list(GAIN_NAMES)}
+    if hybrid:
+        out[ACTION_HYBRID] = {"dtype": "float32", "shape": (3 * ACTION_DIM,), "names": list(HYBRID_NAMES)}
     return out
 
 
@@ -96,7 +96,7 @@ REQUIRED = {
     "action_names": (lambda v: v == list(ACTION_NAMES), f"this toolkit's {ACTION_DIM} joint names"),
 }
 OPTIONAL = {
-    "gains_per_step": (lambda v: isinstance(v, bool), "true or false"),
+    "hybrid_actions": (lambda v: isinstance(v, bool), "true or false"),
     "missing_channels": (lambda v: isinstance(v, list) and all(n in STATE_NAMES for n in v),
                          "a list of state channel names"),
 }
@@ -117,8 +117,9 @@ def acn_block_problem(acn) -> str | None:
     for key, (ok, what) in OPTIONAL.items():
         if key in acn and not ok(acn[key]):
             return f"has '{ACN_KEY}.{key}' = {acn[key]!r:.60} in meta/info.json; it must be {what}"
-    if acn.get("gains_per_step") and acn["action_mode"] != "position":
-        return f"has '{ACN_KEY}.gains_per_step' with action mode {acn['action_mode']!r}: gains need position mode"
+    if acn.get("hybrid_actions") and acn["action_mode"] != "position":
+        return (f"has '{ACN_KEY}.hybrid_actions' with action mode {acn['action_mode']!r}: hybrid commands need "
+                "position mode")
     if abs(acn["physics_dt"] * acn["substeps"] * acn["control_hz"] - 1.0) > 1e-6:
         return (f"has inconsistent rates in meta/info.json: physics_dt {acn['physics_dt']} s x substeps "
                 f"{acn['substeps']} is not one control period (control_hz {acn['control_hz']})")

@@ -35,14 +35,14 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
 def episode_columns(ep: Episode, paired: bool) -> dict[str, np.ndarray]:
     """The per-frame feature columns of one episode (no index columns); an action 48 wide
-    (targets, kp, kd, feedforward: ``SimConfig.gains_per_step``) goes into ``action`` and ``action.gains``."""
+    (targets, kp, kd, feedforward: ``SimConfig.hybrid``) goes into ``action`` and ``action.hybrid``."""
     cols: dict[str, np.ndarray] = {}
 
     def put(tr: Trace, prefix: str) -> None:
         cols[prefix + schema.STATE] = tr.state.astype(np.float32)
         cols[prefix + schema.ACTION] = tr.action[:, :ACTION_DIM].astype(np.float32)
         if tr.action.shape[1] > ACTION_DIM:
-            cols[prefix + schema.ACTION_GAINS] = tr.action[:, ACTION_DIM:].astype(np.float32)
+            cols[prefix + schema.ACTION_HYBRID] = tr.action[:, ACTION_DIM:].astype(np.float32)
         cols[prefix + schema.EFFORT] = tr.effort.astype(np.float32)
         cols[prefix + schema.NEXT_STATE] = tr.next_state.astype(np.float32)
         cols[prefix + schema.NEXT_FALLEN] = tr.fallen.astype(bool)
@@ -92,7 +92,7 @@ class DatasetWriter:
         self.paired, self.task = paired, task
         self.meta = LeRobotDatasetMetadata.create(
             repo_id=f"acn/{self.root.name}", fps=fps,
-            features=schema.features(paired, gains=bool(acn_meta.get("gains_per_step"))),
+            features=schema.features(paired, hybrid=bool(acn_meta.get("hybrid_actions"))),
             robot_type=schema.ROBOT_TYPE, root=self._tmp, use_videos=False,
         )
         self._acn = {**acn_meta, "episodes": []}

@@ -11,15 +11,15 @@ From the action a_t to the torque on each joint, per physics step (all per joint
    **torque mode**: ``tau_cmd = clip(command, -limit, limit)``;
 4. **motor strength**: the joint receives ``strength * tau_cmd``.
 
-**Gains sent with each command** (``SimConfig.gains_per_step``: a controller that switches its
-legs between stance and swing gains, an MPC that sends stance legs pure torques with kp 0, any
-MIT-style command): the action is 48 numbers, the target u, kp_t, kd_t and a feedforward torque
-f_t (12 each), and step 3 reads ``tau_cmd = clip(kp_scale kp_t e - kd_scale kd_t qdot + f_t,
-...)`` (the gain scales act on the feedback, not on the feedforward). Latency delays the streams
-together, so a physics step's command is the average of the laws in force during it:
-``kp_scale (A - G reading) - kd_scale D qdot`` with A = mean(kp_t u + f_t / kp_scale), G =
-mean(kp_t), D = mean(kd_t) (``commands`` returns (A, G, D), 36 columns). The dead band acts on
-e = A / G - reading where G > 0 (on the feedforward too, as on a folded target).
+**Hybrid (MIT-style) commands** (``SimConfig.hybrid``: gains and a feedforward sent with every
+target, by a controller that switches its legs between stance and swing gains, an MPC that sends
+stance legs pure torques with kp 0, ...): the action is 48 numbers, the target u, kp_t, kd_t and
+a feedforward torque f_t (12 each; f_t = kd_t dq_des + tau_ff), and step 3 reads ``tau_cmd =
+clip(kp_scale kp_t e - kd_scale kd_t qdot + f_t, ...)``: the gain scales act on the feedback,
+the dead band on e = u - reading, not on the feedforward. Latency delays the streams together,
+so a physics step's command is the average of the laws in force during it: ``kp_scale (P - G
+reading) - kd_scale D qdot + F`` with P = mean(kp_t u), G = mean(kp_t), D = mean(kd_t), F =
+mean(f_t) (``commands`` returns (P, G, D, F), 48 columns; the dead band acts on P / G - reading).
 
 With nominal parameters this is exactly ``SimConfig``'s PD law. MuJoCo realises steps 2-4 with
 native actuator parameters when there is no dead band (``Actuation.native``); otherwise, and
@@ -61,7 +61,7 @@ class Actuation:
     latency: float          # s
     physics_dt: float       # s
     substeps: int
-    scheduled: bool = False  # the gains come with each action (see module docstring)
+    hybrid: bool = False  # hybrid commands: gains and feedforward come with each target (module docstring)
     kp_scale: np.ndarray | float = 1.0  # what multiplies the gains sent (kp = kp_scale x the config's kp)
     kd_scale: np.ndarray | float = 1.0
 
@@ -74,7 +74,7 @@ class Actuation:
         return cls(mode=config.action_mode, kp=per_joint(config.kp) * p.kp_scale, kd=per_joint(config.kd) * p.kd_scale,
                    limit=limit * ones, strength=p.motor_strength.copy(), offset=p.encoder_offset.copy(),
                    deadband=p.backlash / 2.0, latency=float(p.latency), physics_dt=config.physics_dt,
-                   substeps=config.substeps, scheduled=config.gains_per_step, kp_scale=p.kp_scale.copy(),
+                   substeps=config.substeps, hybrid=config.hybrid, kp_scale=p.kp_scale.copy(),
                    kd_scale=p.kd_scale.copy())
 
     @property
@@ -107,13 +107,13 @@ class Actuation:
     def commands(self, actions: np.ndarray) -> np.ndarray:
         """Per-physics-step commands for consecutive control steps.
 
-        ``actions`` (..., history + K, 12), or 48 wide with the gains: the ``history`` previous
-        actions, then the K actions to apply. Returns (..., K * substeps, 12), or with the gains
-        (..., K * substeps, 36): (A, G, D) of the module docstring.
+        ``actions`` (..., history + K, 12), or 48 wide (hybrid): the ``history`` previous actions,
+        then the K actions to apply. Returns (..., K * substeps, 12), or for hybrid commands
+        (..., K * substeps, 48): (P, G, D, F) of the module docstring.
         """
-        if self.scheduled:
+        if self.hybrid:
             u, kp, kd, f = np.split(actions, 4, axis=-1)
-            actions = np.concatenate([kp * u + f / self.kp_scale, kp, kd], axis=-1)
+            actions = np.concatenate([kp * u, kp, kd, f], axis=-1)
         hist = self.history
         if hist == 0 and self.latency == 0:
             return np.repeat(actions, self.substeps, axis=-2)
@@ -129,15 +129,15 @@ class Actuation:
         and velocity."""
         if self.mode == "torque":
             return self.strength * np.clip(command, -self.limit, self.limit)
-        if self.scheduled:  # kp_t e = A - G reading, with the dead band on e = A / G - reading
-            a, g, d = np.split(command, 3, axis=-1)
+        if self.hybrid:  # kp_t e = P - G reading, with the dead band on e = P / G - reading
+            p, g, d, f = np.split(command, 4, axis=-1)
             reading = q + self.offset
-            if self.deadband.any():  # where G = 0 (no position loop) only the feedforward A
-                e = np.divide(a, g, out=np.zeros_like(a), where=g > 0) - reading
-                stiff = np.where(g > 0, g * np.sign(e) * np.maximum(np.abs(e) - self.deadband, 0.0), a)
+            if self.deadband.any():  # where G = 0 there is no position loop
+                e = np.divide(p, g, out=np.array(np.broadcast_to(reading, p.shape)), where=g > 0) - reading
+                stiff = g * np.sign(e) * np.maximum(np.abs(e) - self.deadband, 0.0)
             else:
-                stiff = a - g * reading
-            return self.strength * np.clip(self.kp_scale * stiff - self.kd_scale * d * qd, -self.limit, self.limit)
+                stiff = p - g * reading
+            return self.strength * np.clip(self.kp_scale * stiff - self.kd_scale * d * qd + f, -self.limit, self.limit)
         e = command - (q + self.offset)
         if self.deadband.any():
             e = np.sign(e) * np.maximum(np.abs(e) - self.deadband, 0.0)

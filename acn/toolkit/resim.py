@@ -60,8 +60,8 @@ class Resimulator:
             raise ValueError("a Resimulator needs at least one model")
         base = self.configs[0]
         for c in self.configs:
-            if (c.physics_dt, c.substeps, c.action_mode, c.gains_per_step) != \
-                    (base.physics_dt, base.substeps, base.action_mode, base.gains_per_step):
+            if (c.physics_dt, c.substeps, c.action_mode, c.hybrid) != \
+                    (base.physics_dt, base.substeps, base.action_mode, base.hybrid):
                 raise ValueError("all models of one Resimulator share physics_dt, substeps, action mode and "
                                  "whether gains come with the actions")
         self.actuation = [Actuation.from_config(c) for c in self.configs]
@@ -127,7 +127,7 @@ class Resimulator:
         layout, sub, k = self._layout, self.configs[0].substeps, actions.shape[1]
         offset = np.stack([a.offset for a in self.actuation])[index]
         frame = np.stack([c.params.base_frame_offset for c in self.configs])[index]
-        width = 3 * ACTION_DIM if self.configs[0].gains_per_step else ACTION_DIM  # Actuation.commands
+        width = 4 * ACTION_DIM if self.configs[0].hybrid else ACTION_DIM  # Actuation.commands
         commands = np.empty((len(states), k * sub, width))
         for m in np.unique(index):  # per-physics-step commands carry each model's latency
             rows = np.flatnonzero(index == m)

@@ -75,10 +75,10 @@ class SimConfig:
     kd: JointGains = 1.5          # N m s/rad, position-mode PD damping (every joint, or per joint)
     torque_limit: float = 33.5    # N m, applied to every joint in both modes
     params: ModelParams = field(default_factory=ModelParams)
-    # The controller sends its gains with every command (position mode; ``acn.toolkit.actuation``):
-    # an action is then 48 numbers, the 12 targets, the 12 kp, the 12 kd and the 12 feedforward
-    # torques in force with them (kp, kd above are then only recorded, not used by the law).
-    gains_per_step: bool = False
+    # Hybrid (MIT-style) commands (position mode; ``acn.toolkit.actuation``): an action is 48
+    # numbers, the 12 targets, the 12 kp, the 12 kd and the 12 feedforward torques sent together
+    # (kp, kd above are then only recorded, not used by the law).
+    hybrid: bool = False
 
     def __post_init__(self) -> None:
         self.kp, self.kd = joint_gains(self.kp), joint_gains(self.kd)
@@ -90,15 +90,14 @@ class SimConfig:
     @property
     def action_dim(self) -> int:
         """Numbers per action: 12 targets or torques; 48 with the gains and feedforward torques
-        (``gains_per_step``)."""
-        return 4 * ACTION_DIM if self.gains_per_step else ACTION_DIM
+        (``hybrid``)."""
+        return 4 * ACTION_DIM if self.hybrid else ACTION_DIM
 
     def validate(self) -> None:
         if self.action_mode not in ACTION_MODES:
             raise ValueError(f"action mode must be one of {ACTION_MODES}, got {self.action_mode!r}")
-        if self.gains_per_step and self.action_mode != "position":
-            raise ValueError("gains sent with each command complete a position target: gains_per_step needs "
-                             "position mode")
+        if self.hybrid and self.action_mode != "position":
+            raise ValueError("a hybrid command completes a position target: hybrid needs position mode")
         if not (0 < self.physics_dt <= MAX_PHYSICS_DT):
             raise ValueError(f"physics_dt must be in (0, {MAX_PHYSICS_DT}] s, got {self.physics_dt}")
         if self.substeps < 1:
@@ -109,7 +108,7 @@ class SimConfig:
 
 def pd_torque(target: np.ndarray, q: np.ndarray, qd: np.ndarray, cfg: SimConfig) -> np.ndarray:
     """The position-mode control law, N m (see module docstring); ``target`` (..., 12), or 48 wide
-    with the gains and feedforward sent with it (``SimConfig.gains_per_step``)."""
+    with the gains and feedforward sent with it (``SimConfig.hybrid``)."""
     if target.shape[-1] == 4 * NUM_JOINTS:
         target, kp, kd, f = np.split(target, 4, axis=-1)
     else:
@@ -226,7 +225,7 @@ class Backend(ABC):
 
     def step(self, action: np.ndarray) -> np.ndarray:
         """Advance one control step under ``action`` (12,), or (48,) with the gains sent with it
-        (``SimConfig.gains_per_step``); return mean applied torque (12,), N m.
+        (``SimConfig.hybrid``); return mean applied torque (12,), N m.
 
         Raises ``SimulationDiverged`` if the simulator produced an absurd state.
         """
@@ -261,7 +260,7 @@ class Backend(ABC):
         """(substeps, width) per-physics-step commands for ``action`` (``Actuation.commands``);
         remembers it for the latency."""
         hist = self.actuation.history
-        if hist == 0 and self.actuation.latency == 0 and not self.actuation.scheduled:
+        if hist == 0 and self.actuation.latency == 0 and not self.actuation.hybrid:
             return np.broadcast_to(action, (self.config.substeps, ACTION_DIM))
         past = self._history if self._history is not None else np.empty((0, len(action)))
         if len(past) < hist:  # earlier actions unknown: taken equal to the oldest one known

@@ -9,11 +9,11 @@ stepped with ``mj_step`` or re-simulated in batches with ``mujoco.rollout``:
 - torque mode: ``tau = s ctrl``, ctrl-limited to +-limit;
 - position mode with a dead band (backlash), which no affine actuator can express: plain
   motors (``tau = ctrl``), the torque computed by ``Actuation.torque`` every physics step;
-- gains sent with each command (``SimConfig.gains_per_step``): three actuators per joint, whose
-  36 controls are ``Actuation.commands``' (A, G, D): a motor ``s kp_scale A``, an affine gain
-  ``G (-s kp_scale (q + offset))`` and one ``D (-s kd_scale qdot)``, their sum limited to
-  +-s limit at the joint (``actfrcrange``); with a dead band the motors carry the torque and the
-  24 others take their controls with no force.
+- hybrid commands (``SimConfig.hybrid``): four actuators per joint, whose 48 controls are
+  ``Actuation.commands``' (P, G, D, F): a motor ``s kp_scale P``, an affine gain ``G (-s kp_scale
+  (q + offset))``, one ``D (-s kd_scale qdot)`` and a motor ``s F``, their sum limited to +-s limit
+  at the joint (``actfrcrange``); with a dead band the first motors carry the torque and the 36
+  others take their controls with no force.
 
 The physical parameters of ``ModelParams`` are written into the spec: joint damping,
 frictionloss and armature, the payload combined into the trunk's inertia, geom friction and
@@ -78,7 +78,7 @@ def build_spec(config: SimConfig) -> mujoco.MjSpec:
         name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1],
         contype=0, conaffinity=1, friction=[prm.ground_friction, 0.005, 0.0001], solref=solref,
     )
-    scheduled = act.scheduled and act.native
+    native_hybrid = act.hybrid and act.native
     for k, jname in enumerate(JOINT_NAMES):
         joint = spec.joint(URDF_JOINT[jname])
         joint.damping[0] = float(prm.joint_damping[k])  # MuJoCo 4: polynomial coefficients, [0] linear
@@ -87,7 +87,7 @@ def build_spec(config: SimConfig) -> mujoco.MjSpec:
         a = spec.add_actuator(name=jname, target=URDF_JOINT[jname], trntype=mujoco.mjtTrn.mjTRN_JOINT)
         s, lim = float(act.strength[k]), float(act.limit[k])
         a.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
-        if scheduled:  # three actuators per joint (below), limited together at the joint
+        if native_hybrid:  # four actuators per joint (below), limited together at the joint
             joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_TRUE
             joint.actfrcrange = [-s * lim, s * lim]
             a.gainprm[0] = s * float(act.kp_scale[k])
@@ -106,21 +106,23 @@ def build_spec(config: SimConfig) -> mujoco.MjSpec:
             a.ctrlrange = [-lim, lim]
         else:  # the torque is computed by Actuation.torque each physics step
             a.gainprm[0] = 1.0
-    if act.scheduled:  # the controls G (kp_t) and D (kd_t) of each joint, after the 12 of A
-        for part in ("kp", "kd"):
+    if act.hybrid:  # the controls G (kp_t), D (kd_t) and F (feedforward) of each joint, after the 12 of P
+        for part in ("kp", "kd", "feedforward"):
             for k, jname in enumerate(JOINT_NAMES):
                 a = spec.add_actuator(name=f"{jname}_{part}", target=URDF_JOINT[jname],
                                       trntype=mujoco.mjtTrn.mjTRN_JOINT)
                 a.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
-                if not scheduled:  # Actuation.torque has used them: no force of their own
-                    a.gainprm[0] = 0.0
-                    continue
                 s = float(act.strength[k])
-                a.gaintype = mujoco.mjtGain.mjGAIN_AFFINE
-                if part == "kp":  # G (-s kp_scale (q + offset))
+                if not native_hybrid:  # Actuation.torque has used them: no force of their own
+                    a.gainprm[0] = 0.0
+                elif part == "kp":  # G (-s kp_scale (q + offset))
+                    a.gaintype = mujoco.mjtGain.mjGAIN_AFFINE
                     a.gainprm[:3] = [-s * float(act.kp_scale[k] * act.offset[k]), -s * float(act.kp_scale[k]), 0.0]
-                else:             # D (-s kd_scale qdot)
+                elif part == "kd":  # D (-s kd_scale qdot)
+                    a.gaintype = mujoco.mjtGain.mjGAIN_AFFINE
                     a.gainprm[:3] = [0.0, 0.0, -s * float(act.kd_scale[k])]
+                else:               # s F
+                    a.gainprm[0] = s
     for jname in JOINT_NAMES:
         spec.add_sensor(name=f"{jname}_torque", type=mujoco.mjtSensor.mjSENS_JOINTACTFRC,
                         objtype=mujoco.mjtObj.mjOBJ_JOINT, objname=URDF_JOINT[jname])
