@@ -39,7 +39,7 @@ class Measurements:
     """N transitions (float64); ``state`` and ``next_state`` hold NaN in missing channels."""
 
     state: np.ndarray        # (N, 43) s_t
-    action: np.ndarray       # (N, 12) a_t; (N, 48) with the gains and feedforward sent with it (``SimConfig.hybrid``)
+    action: np.ndarray       # (N, 12) a_t; (N, 48) a hybrid command (``SimConfig.hybrid``)
     next_state: np.ndarray   # (N, 43) s_{t+1}
     effort: np.ndarray       # (N, 12) applied joint torque, N m (NaN if not logged)
     episode: np.ndarray      # (N,) int, rows of one episode are consecutive control steps
@@ -55,8 +55,8 @@ class Measurements:
 
     @property
     def targets(self) -> np.ndarray:
-        """(N, 12) the joint targets (or torques) of the actions. With gains per step, the target at
-        which the PD gives the command's torque (u + f / kp; the joint's angle where kp is 0)."""
+        """(N, 12) the joint targets (or torques) of the actions. For hybrid commands the target at
+        which the PD gives the command's torque (``acn.toolkit.actuation.position_targets``)."""
         if self.action.shape[1] == ACTION_DIM:
             return self.action
         return position_targets(self.action, self.state[:, SLICES["joint_pos"]])

@@ -62,8 +62,8 @@ class Actuation:
     physics_dt: float       # s
     substeps: int
     hybrid: bool = False  # hybrid commands: gains and feedforward come with each target (module docstring)
-    kp_scale: np.ndarray | float = 1.0  # what multiplies the gains sent (kp = kp_scale x the config's kp)
-    kd_scale: np.ndarray | float = 1.0
+    kp_scale: np.ndarray | float = 1.0  # multiplies the kp a hybrid command sends (``kp`` above includes it)
+    kd_scale: np.ndarray | float = 1.0  # the same for kd
 
     @classmethod
     def from_config(cls, config) -> "Actuation":
