@@ -535,7 +535,8 @@ def import_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, type=Path, help="dataset directory to create")
     p.add_argument("--control-hz", required=True, type=_positive_int, help="control rate the log was recorded at")
     p.add_argument("--kp", required=True, type=_joint_gains(0, True),
-                   help="joint PD stiffness the robot ran with, N m/rad" + _GAINS_HELP)
+                   help="joint PD stiffness the robot ran with, N m/rad" + _GAINS_HELP + "; a log with action_kp.* "
+                   "columns (a hybrid command, with action_kd.*, action_vel.*, action_torque.*) sends its own per row")
     p.add_argument("--kd", required=True, type=_joint_gains(0, True), help="joint PD damping, N m s/rad" + _GAINS_HELP)
     p.add_argument("--torque-limit", required=True, type=_positive_float, help="N m, every joint")
     p.add_argument("--action-mode", default="position", choices=ACTION_MODES)
