@@ -39,7 +39,7 @@ derives those velocities from the joint angles.
 
 With ``--feedforward``, the controllers send a hybrid command (q_des, dq_des, tau_ff; the motor
 runs kp (q_des - q) + kd (dq_des - qd) + tau_ff), logged as ``action.*``, ``action_vel.*`` and
-``action_torque.*``, which acn-import folds into the position targets.
+``action_torque.*``, which acn-import stores with the actions (the model's PD runs them as sent).
 
 With ``--stance-gains KP,KD``, the controllers send their gains with every command and switch
 each leg between the nominal gains (swing) and KP, KD times them (stance) on a gait clock

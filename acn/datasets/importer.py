@@ -288,7 +288,7 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
         raise UserError(f"{log} has fewer than 2 rows")
     missing = [c for c in STATE_NAMES if c not in cols]
     state = _to_body_frame(np.column_stack([cols.get(c, np.full(n, np.nan)) for c in STATE_NAMES]), cfg)
-    action, hybrid = _hybrid_actions(np.column_stack([cols[c] for c in ACTION_COLUMNS]), cols, cfg, state)
+    action, hybrid = _hybrid_actions(np.column_stack([cols[c] for c in ACTION_COLUMNS]), cols, cfg)
     has_effort = all(c in cols for c in EFFORT_COLUMNS)
     partial_effort = [c for c in EFFORT_COLUMNS if c in cols] if not has_effort else []
     effort = np.column_stack([cols[c] for c in EFFORT_COLUMNS]) if has_effort else np.full((n, 12), np.nan)
@@ -393,8 +393,7 @@ def _to_body_frame(state: np.ndarray, cfg: ImportConfig) -> np.ndarray:
     return out
 
 
-def _hybrid_actions(action: np.ndarray, cols: dict[str, np.ndarray], cfg: ImportConfig,
-                 state: np.ndarray) -> tuple[np.ndarray, list[str]]:
+def _hybrid_actions(action: np.ndarray, cols: dict[str, np.ndarray], cfg: ImportConfig) -> tuple[np.ndarray, list[str]]:
     """The actions for the model's PD law from a hybrid command, and which kinds
     (``HYBRID_COLUMNS``) the log had (each kind all 12 joints or none).
 
