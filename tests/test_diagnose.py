@@ -20,7 +20,7 @@ from acn.models.diagnose.rank import doubt
 from acn.models.diagnose.report import terminal, to_json, write_html
 from acn.toolkit.collector import CollectConfig
 from acn.toolkit.effects import AppliedEffect, Model, get_effect
-from acn.toolkit.state import GROUPS, JOINT_NAMES
+from acn.toolkit.state import GROUPS, JOINT_NAMES, STATE_NAMES
 
 # Small and quick: a few hundred rows, a few hundred re-simulated per stage.
 FAST = DiagnoseConfig(horizons=(1, 5), compare_rows=300, rollout_starts=30, rank_rows=100, judge_rows=300,
@@ -355,6 +355,22 @@ def test_an_mpc_style_controller_that_sends_stance_legs_pure_torques_has_its_lat
     assert d.ranking[0].name == "actuator_latency" and d.verdict == "effect", d.reason
     assert abs(d.added[0].fit.values["seconds"] - 0.015) < 0.0015
     assert d.added[0].judgement.explained(d.floor_mse) >= 0.8
+
+
+def test_a_corrector_moves_a_hybrid_commands_target_and_keeps_its_gains():
+    """A corrector of position targets acts on a hybrid command through the target that drives
+    its PD (q_des + f / kp): q_des moves by the correction, kp, kd and the feedforward stay."""
+    from acn.models.diagnose.problem import corrected
+
+    class Shift:  # a corrector that adds 0.1 rad to every target
+        def correct(self, states, actions):
+            return actions + 0.1
+
+    states = np.zeros((2, len(STATE_NAMES)))
+    u, kp, kd, f = np.full((2, 12), 0.3), np.full((2, 12), 40.0), np.full((2, 12), 1.0), np.full((2, 12), 4.0)
+    out = corrected(Shift(), states, np.hstack([u, kp, kd, f]))
+    np.testing.assert_allclose(out, np.hstack([u + 0.1, kp, kd, f]))
+    np.testing.assert_allclose(corrected(Shift(), states, u), u + 0.1)  # plain targets as before
 
 
 def test_a_controller_with_gains_per_joint_type_is_imported_with_them(tmp_path, capsys):

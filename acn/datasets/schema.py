@@ -9,9 +9,9 @@ Per frame (one control step t of one episode):
 ``next.observation.state``     s_{t+1} of the source (so the last transition is complete)
 ``next.fallen``                s_{t+1} of the source meets the fall rule
 ``next.done``                  this is the last frame of the episode
-``action.hybrid``               kp, kd and a feedforward torque (N m/rad, N m s/rad, N m; 12
-                               each) sent with ``action``, in logs whose controller sends gains
-                               with every command (``acn.hybrid_actions``; imported logs only)
+``action.hybrid``              kp, kd and a feedforward torque (N m/rad, N m s/rad, N m; 12
+                               each) sent with ``action`` as a hybrid (MIT-style) command
+                               (``acn.hybrid_actions``; imported logs only)
 ``target.*``                   the same four columns and ``target.next.fallen`` for the
                                target simulator (paired datasets only); ``target.action``
                                differs from ``action`` only when a corrector is applied

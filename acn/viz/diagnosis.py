@@ -137,7 +137,9 @@ def predict_episode(problem, sim: Resimulator, stages: list[Stage], episode: int
     s, n = len(stages), len(ok)
     actions = d.action[ok]
     if corrector is not None:
-        actions = corrector.correct(d.state[ok], actions)
+        from acn.models.diagnose.problem import corrected
+
+        actions = corrected(corrector, d.state[ok], actions)
     model = np.repeat(np.arange(s), n)
     pred = sim.run(d.starts(np.tile(ok, s), sim.backend, sim.configs, model), np.tile(actions, (s, 1)),
                    np.tile(d.previous_actions(ok, problem.history), (s, 1, 1)), model=model)

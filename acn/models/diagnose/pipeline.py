@@ -38,13 +38,12 @@ from acn.datasets.measurements import Measurements
 from acn.models.diagnose.add import Added, Chain, add_effect, auto, longest_removed
 from acn.models.diagnose.compare import Comparison, compare, floor_of, informative_horizon
 from acn.models.diagnose.pairing import action_row
-from acn.models.diagnose.problem import DiagnoseConfig, Problem, prepare
+from acn.models.diagnose.problem import DiagnoseConfig, Problem, corrected, prepare
 from acn.models.diagnose.rate import physics_rate
 from acn.models.diagnose.rank import (STRUCTURED_SHARE, Candidate, doubt, explained_share, finer_look, implausible,
                                       fits_noise_by_size, one_step_only, rank)
 from acn.models.diagnose.where import breakdown
 from acn.toolkit.effects import Model, get_effect
-from acn.toolkit.state import ACTION_DIM
 
 EXACT = 1e-3                  # headline error below which a model reproduces the data (float32 storage: ~1e-6)
 EFFECT_SHARE = 0.7            # of the structured error an effect must explain to be named
@@ -280,11 +279,10 @@ def explain_corrector(data: Measurements, model: Model, corrector_dir, cfg: Diag
     problem = prepare(data, model, cfg)
     rows = np.concatenate([problem.fit_rows, problem.held_rows])
     d = problem.data
-    corrected = d.action[rows].copy()  # the targets corrected; gains sent with them stay
-    corrected[:, :ACTION_DIM] = corrector.correct(d.state[rows], d.targets[rows])
+    actions = corrected(corrector, d.state[rows], d.action[rows])
     config = model.sim_config(problem.control)
     with Resimulator(model.backend, config, threads=cfg.threads) as sim:
-        pred = sim.run(d.starts(rows, model.backend, config), corrected, d.previous_actions(rows, problem.history))
+        pred = sim.run(d.starts(rows, model.backend, config), actions, d.previous_actions(rows, problem.history))
     outcome = pred.state[:, 0]
     unpredicted = np.isnan(outcome).all(0)  # contacts: keep the measured readings
     outcome[:, unpredicted] = d.next_state[rows][:, unpredicted]

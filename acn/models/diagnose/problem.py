@@ -27,6 +27,7 @@ from acn.datasets import checks
 from acn.datasets.measurements import Measurements, fill_derived
 from acn.datasets.reader import state_difference
 from acn.errors import UserError
+from acn.toolkit.actuation import position_targets
 from acn.toolkit.backends import SimConfig
 from acn.toolkit.effects import EFFECT_NAMES, Model
 from acn.toolkit.resim import Resimulator
@@ -118,8 +119,8 @@ class Problem:
         d = self.data
         actions = self.actions(rows + shift, horizon)
         if corrector is not None and horizon == 1:
-            for i in range(self.unit):  # the targets; gains sent with them stay
-                actions[:, i, :ACTION_DIM] = corrector.correct(d.state[rows + i], actions[:, i, :ACTION_DIM])
+            for i in range(self.unit):
+                actions[:, i] = corrected(corrector, d.state[rows + i], actions[:, i])
         with Resimulator(self.backend, configs, threads=self.threads) as sim:
             pred = sim.run(d.starts(rows, self.backend, configs, model_of_row), actions,
                            d.previous_actions(rows + shift, self.history), model=model_of_row)
@@ -147,6 +148,18 @@ class Problem:
             return rows
         rng = np.random.default_rng([self.seed, salt])
         return np.sort(rng.choice(rows, count, replace=False))
+
+
+def corrected(corrector, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
+    """``actions`` (N, 12 or 48) corrected from ``states`` (N, 43) by a corrector of position
+    targets. A hybrid command's q_des moves by the correction of its target (``position_targets``);
+    its gains and feedforward stay as sent."""
+    if actions.shape[1] == ACTION_DIM:
+        return corrector.correct(states, actions)
+    targets = position_targets(actions, states[:, SLICES["joint_pos"]])
+    out = actions.copy()
+    out[:, :ACTION_DIM] += corrector.correct(states, targets) - targets
+    return out
 
 
 def prepare(data: Measurements, model: Model, cfg: DiagnoseConfig) -> Problem:
