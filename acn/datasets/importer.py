@@ -328,9 +328,7 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
                 dropped += 1
                 continue
             now, nxt = rows[:-1], rows[1:]
-            targets = action[now] if action.shape[1] == NUM_JOINTS else \
-                position_targets(action[now], state[now][:, SLICES["joint_pos"]])
-            written.append((state[rows], targets))
+            written.append((state[rows], position_targets(action[now], state[now][:, SLICES["joint_pos"]])))
             trace = Trace(state[now], action[now], effort[now], state[nxt],
                           np.array([_fallen(s) for s in state[nxt]], dtype=bool))
             writer.write(Episode(writer.num_episodes, timestamp[now] - timestamp[now[0]], trace, None, reason))

@@ -57,8 +57,6 @@ class Measurements:
     def targets(self) -> np.ndarray:
         """(N, 12) the joint targets (or torques) of the actions. For hybrid commands the target at
         which the PD gives the command's torque (``acn.toolkit.actuation.position_targets``)."""
-        if self.action.shape[1] == ACTION_DIM:
-            return self.action
         return position_targets(self.action, self.state[:, SLICES["joint_pos"]])
 
     @property

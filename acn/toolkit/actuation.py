@@ -40,9 +40,12 @@ from acn.toolkit.state import NUM_JOINTS
 
 
 def position_targets(actions: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """(..., 12) position targets of 48-wide actions (u, kp, kd, f; module docstring): the target
-    at which the command's own PD gives its torque, u + f / kp; the joint angle ``q`` where kp is
-    0 (no position loop). What the data checks and the candidate terms read as "the target"."""
+    """(..., 12) position targets of actions: 12-wide ones as they are; of 48-wide hybrid commands
+    (u, kp, kd, f; module docstring) the target at which the command's own PD gives its torque,
+    u + f / kp, and the joint angle ``q`` where kp is 0 (no position loop). What the data checks
+    and the candidate terms read as "the target"."""
+    if actions.shape[-1] == NUM_JOINTS:
+        return actions
     u, kp, _, f = np.split(actions, 4, axis=-1)
     return np.where(kp > 0, u + np.divide(f, kp, out=np.zeros_like(f), where=kp > 0), q)
 

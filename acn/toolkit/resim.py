@@ -63,7 +63,7 @@ class Resimulator:
             if (c.physics_dt, c.substeps, c.action_mode, c.hybrid) != \
                     (base.physics_dt, base.substeps, base.action_mode, base.hybrid):
                 raise ValueError("all models of one Resimulator share physics_dt, substeps, action mode and "
-                                 "whether gains come with the actions")
+                                 "whether the actions are hybrid commands")
         self.actuation = [Actuation.from_config(c) for c in self.configs]
         self.threads = threads or max(1, min(parallel.usable_cpus(), 8))
         self._models: list | None = None   # MuJoCo models, compiled on first use
@@ -127,7 +127,7 @@ class Resimulator:
         layout, sub, k = self._layout, self.configs[0].substeps, actions.shape[1]
         offset = np.stack([a.offset for a in self.actuation])[index]
         frame = np.stack([c.params.base_frame_offset for c in self.configs])[index]
-        width = 4 * ACTION_DIM if self.configs[0].hybrid else ACTION_DIM  # Actuation.commands
+        width = actions.shape[2]  # Actuation.commands keeps the actions' width
         commands = np.empty((len(states), k * sub, width))
         for m in np.unique(index):  # per-physics-step commands carry each model's latency
             rows = np.flatnonzero(index == m)
