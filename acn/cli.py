@@ -591,8 +591,8 @@ def import_main(argv: list[str] | None = None) -> int:
               f"row(s) with non-finite values, split at {r.time_breaks} wrong time step(s), dropped "
               f"{r.dropped_short} one-row segment(s)")
         if r.hybrid:
-            print(f"a hybrid command ({', '.join(r.hybrid)}): stored with the actions (action.hybrid: kp, kd and the "
-                  "feedforward kd dq_des + tau_ff), which the model's PD runs as sent (--kp, --kd for a kind of gain "
+            print(f"a hybrid command ({', '.join(r.hybrid)}): stored with the actions (action.hybrid: kp, kd, "
+                  "velocity target and feedforward torque), which the model's PD runs as sent (--kp, --kd for a kind of gain "
                   "the log does not send)")
         if args.physics_hz is None and (hz := physics_hz_for(args.control_hz)) != PHYSICS_HZ:
             print(f"the model simulates it at {hz} Hz, the multiple of {args.control_hz} Hz nearest {PHYSICS_HZ} Hz "

@@ -153,20 +153,23 @@ def test_position_mode_torque_is_the_pd_law(name):
 
 @pytest.mark.parametrize("name", BACKENDS)
 def test_gains_sent_with_each_command_drive_the_pd(name):
-    """With ``hybrid`` an action is (targets, kp, kd, feedforward): at rest the first
-    physics step's torque is kp_t (target - q) - kd_t qdot + f_t with what was sent (kp_t 0: the
-    feedforward alone); sending the config's own gains and no feedforward every step is the plain
-    PD (same trajectory under latency, strength, offsets, gain scales)."""
+    """With ``hybrid`` an action is (targets, kp, kd, velocity targets, feedforward): at rest the
+    first physics step's torque is kp_scale kp_t (target - q) + kd_scale kd_t (v_t - qdot) + tau_t
+    with what was sent (kp_t 0: the velocity loop and feedforward alone); sending the config's own
+    gains and no velocity target or feedforward every step is the plain PD (same trajectory under
+    latency, strength, offsets, gain scales)."""
     kp_t = np.linspace(0.0, 400.0, 12)  # the stiffest joints reach the torque limit
-    f_t = np.linspace(-3.0, 3.0, 12)
-    with make_backend(name, SimConfig(substeps=1, hybrid=True)) as sim:
-        s = sim.reset()
-        target = s[SLICES["joint_pos"]] + 0.1
-        tau = sim.step(np.concatenate([target, kp_t, np.full(12, 2.0), f_t]))
-        np.testing.assert_allclose(tau, np.clip(kp_t * 0.1 - 2.0 * s[SLICES["joint_vel"]] + f_t, -33.5, 33.5),
-                                   atol=1e-5)
-        with pytest.raises(ValueError, match=r"\(48,\)"):
-            sim.step(target)
+    v_t, tau_t = np.linspace(2.0, -2.0, 12), np.linspace(-3.0, 3.0, 12)
+    for kp_scale, kd_scale in ((1.0, 1.0), (0.7, 1.5)):
+        with make_backend(name, SimConfig(substeps=1, hybrid=True,
+                                          params=ModelParams(kp_scale=kp_scale, kd_scale=kd_scale))) as sim:
+            s = sim.reset()
+            target = s[SLICES["joint_pos"]] + 0.1
+            tau = sim.step(np.concatenate([target, kp_t, np.full(12, 2.0), v_t, tau_t]))
+            want = kp_scale * kp_t * 0.1 + kd_scale * 2.0 * (v_t - s[SLICES["joint_vel"]]) + tau_t
+            np.testing.assert_allclose(tau, np.clip(want, -33.5, 33.5), atol=1e-5)
+            with pytest.raises(ValueError, match=r"\(60,\)"):
+                sim.step(target)
     params = ModelParams(latency=0.013, motor_strength=0.8, encoder_offset=0.02, kp_scale=0.7, kd_scale=1.3)
     runs = []
     for gains in (False, True):
@@ -174,7 +177,7 @@ def test_gains_sent_with_each_command_drive_the_pd(name):
             s, trot, states = sim.reset(), Trot(), []
             for k in range(15):
                 a = trot(s, 0.02 * k)
-                sim.step(np.concatenate([a, np.full(12, 60.0), np.full(12, 1.5), np.zeros(12)]) if gains else a)
+                sim.step(np.concatenate([a, np.full(12, 60.0), np.full(12, 1.5), np.zeros(24)]) if gains else a)
                 s = sim.get_state()
                 states.append(s[:36])
         runs.append(np.array(states))

@@ -20,7 +20,7 @@ from acn.models.diagnose.rank import doubt
 from acn.models.diagnose.report import terminal, to_json, write_html
 from acn.toolkit.collector import CollectConfig
 from acn.toolkit.effects import AppliedEffect, Model, get_effect
-from acn.toolkit.state import GROUPS, JOINT_NAMES, STATE_NAMES
+from acn.toolkit.state import GROUPS, JOINT_NAMES, SLICES, STATE_NAMES
 
 # Small and quick: a few hundred rows, a few hundred re-simulated per stage.
 FAST = DiagnoseConfig(horizons=(1, 5), compare_rows=300, rollout_starts=30, rank_rows=100, judge_rows=300,
@@ -332,7 +332,7 @@ def test_a_controller_that_switches_gains_by_gait_phase_has_its_damping_found(tm
     write_log(tmp_path / "log.csv", LogSpec(noise=1.0, seed=31, stance_gains=(0.5, 1.5), spec_edit=damping))
     path, _ = import_log(tmp_path / "log.csv", tmp_path / "robot", ImportConfig(50, 60.0, 1.5, 33.5))
     m = load_measurements(path)
-    assert m.control.hybrid and m.action.shape[1] == 48
+    assert m.control.hybrid and m.action.shape[1] == 60
     d = diagnose(m, Model.parse("mujoco"), replace(FAST, finest="shared"), add=["joint_damping"])
     assert d.ranking[0].name == "joint_damping" and d.verdict == "effect", d.reason
     assert close(d.added[0].fit.values["value"], 0.5, rel=0.1)
@@ -342,7 +342,7 @@ def test_a_controller_that_switches_gains_by_gait_phase_has_its_damping_found(tm
 def test_an_mpc_style_controller_that_sends_stance_legs_pure_torques_has_its_latency_found(tmp_path):
     """Stance legs on kp 0 with a torque the controller computes from its noisy readings (as an
     MPC's force plan), swing legs on the PD: the actions carry kp_t, kd_t and the feedforward
-    (48 wide), and a 15 ms latency is named and fitted. Folded into targets for the imported
+    (60 wide), and a 15 ms latency is named and fitted. Folded into targets for the imported
     gains (before) it read 10.0 ms with armature ranked first, and damping 0.5 read 0.16."""
     from acn.datasets.importer import ImportConfig, import_log
 
@@ -350,16 +350,41 @@ def test_an_mpc_style_controller_that_sends_stance_legs_pure_torques_has_its_lat
     path, report = import_log(tmp_path / "log.csv", tmp_path / "robot", ImportConfig(50, 60.0, 1.5, 33.5))
     assert report.findings == [] and set(report.hybrid) == {"action_torque", "action_kp", "action_kd"}
     m = load_measurements(path)
-    assert m.action.shape[1] == 48 and (m.action[:, 12:24] == 0).any()  # kp 0 on the stance legs
+    assert m.action.shape[1] == 60 and (m.action[:, 12:24] == 0).any()  # kp 0 on the stance legs
     d = diagnose(m, Model.parse("mujoco"), replace(FAST, finest="shared"), add=["actuator_latency"])
     assert d.ranking[0].name == "actuator_latency" and d.verdict == "effect", d.reason
     assert abs(d.added[0].fit.values["seconds"] - 0.015) < 0.0015
     assert d.added[0].judgement.explained(d.floor_mse) >= 0.8
 
 
+def test_a_motor_whose_damping_gain_differs_acts_on_the_velocity_target_too(tmp_path):
+    """An MIT-style motor runs kd (dq_des - qd): a kd scale multiplies the velocity target's term
+    as well as -qd. The model's PD does the same (the velocity target is part of the action), so
+    the right kd_scale reproduces a noise-free log with kd 0.6x; stored folded into the
+    feedforward (kd dq_des + tau_ff, stop 38) it was scaled on -qd alone, which made that model
+    WORSE than the nominal one (median over rows of the largest joint-velocity error: 0.0011
+    rad/s now, 0.39 nominal, 0.67 folded) and a diagnosis of such a log `none`."""
+    from acn.datasets.importer import ImportConfig, import_log
+    from acn.toolkit.resim import Resimulator
+    from acn.toolkit.robot import ModelParams
+
+    write_log(tmp_path / "log.csv", LogSpec(seconds=2.0, episodes=1, seed=5, feedforward=True, gains=(1.0, 0.6)))
+    m = load_measurements(import_log(tmp_path / "log.csv", tmp_path / "ds", ImportConfig(50, 60.0, 1.5, 33.5))[0])
+    assert m.action.shape[1] == 60 and np.abs(m.action[:, 36:48]).max() > 1.0  # velocity targets, rad/s
+    rows = np.arange(len(m))
+    error = {}
+    for kd_scale in (1.0, 0.6):
+        with Resimulator("mujoco", replace(m.control, params=ModelParams(kd_scale=kd_scale))) as sim:
+            pred = sim.run(m.state[rows], m.action[rows], m.previous_actions(rows, 1))
+        e = pred.state[:, 0, SLICES["joint_vel"]] - m.next_state[rows][:, SLICES["joint_vel"]]
+        error[kd_scale] = float(np.median(np.abs(e).max(axis=1)))  # a few contact events jump
+    assert error[0.6] < 0.005 and error[0.6] < 0.05 * error[1.0], error
+
+
 def test_a_corrector_moves_a_hybrid_commands_target_and_keeps_its_gains():
     """A corrector of position targets acts on a hybrid command through the target that drives
-    its PD (q_des + f / kp): q_des moves by the correction, kp, kd and the feedforward stay."""
+    its PD (q_des + (kd dq_des + tau_ff) / kp): q_des moves by the correction, kp, kd, the
+    velocity target and the feedforward stay."""
     from acn.models.diagnose.problem import corrected
 
     class Shift:  # a corrector that adds 0.1 rad to every target
@@ -367,9 +392,10 @@ def test_a_corrector_moves_a_hybrid_commands_target_and_keeps_its_gains():
             return actions + 0.1
 
     states = np.zeros((2, len(STATE_NAMES)))
-    u, kp, kd, f = np.full((2, 12), 0.3), np.full((2, 12), 40.0), np.full((2, 12), 1.0), np.full((2, 12), 4.0)
-    out = corrected(Shift(), states, np.hstack([u, kp, kd, f]))
-    np.testing.assert_allclose(out, np.hstack([u + 0.1, kp, kd, f]))
+    u, kp, kd = np.full((2, 12), 0.3), np.full((2, 12), 40.0), np.full((2, 12), 1.0)
+    v, tau = np.full((2, 12), 2.0), np.full((2, 12), 4.0)
+    out = corrected(Shift(), states, np.hstack([u, kp, kd, v, tau]))
+    np.testing.assert_allclose(out, np.hstack([u + 0.1, kp, kd, v, tau]))
     np.testing.assert_allclose(corrected(Shift(), states, u), u + 0.1)  # plain targets as before
 
 

@@ -97,7 +97,7 @@ def test_bad_model_files_are_one_line_errors(tmp_path, bad, message):
                                                      ("pybullet", True, 0.02)])
 def test_resimulation_reproduces_the_backend_step_by_step(backend, gains, backlash):
     """Batch re-simulation from recorded states (with latency history) equals stepping the backend;
-    also with gains that change every step (``hybrid``: MuJoCo's three actuators per joint
+    also with gains that change every step (``hybrid``: MuJoCo's four actuators per joint
     without a dead band, the law in numpy with one)."""
     params = ModelParams(latency=0.027, encoder_offset=0.03, payload_mass=1.0, payload_com=[0.02, 0.0, 0.01],
                          backlash=backlash, armature=0.01, kp_scale=0.8, kd_scale=1.2, motor_strength=0.9,
@@ -109,9 +109,10 @@ def test_resimulation_reproduces_the_backend_step_by_step(backend, gains, backla
         s = sim.reset(s0)
         for k in range(12):
             a = trot(s, 0.02 * k)
-            if gains:  # gains that change every step, a feedforward, two joints on torque alone at times
+            if gains:  # gains that change every step, velocity targets, a feedforward, two joints on torque alone at times
                 kp_t = 60.0 * (1.0 + 0.5 * np.sin(k + np.arange(12))) * (np.arange(12) % 6 != k % 2)
-                a = np.concatenate([a, kp_t, np.full(12, 1.5 + 0.1 * k), 2.0 * np.cos(k + np.arange(12))])
+                a = np.concatenate([a, kp_t, np.full(12, 1.5 + 0.1 * k), 1.5 * np.sin(2 * k + np.arange(12)),
+                                    2.0 * np.cos(k + np.arange(12))])
             efforts.append(sim.step(a))
             states.append(s)
             actions.append(a)

@@ -82,7 +82,7 @@ def test_a_control_rate_that_does_not_divide_1_khz_gets_the_nearest_physics_rate
 
 def test_a_hybrid_command_is_stored_whole(tmp_path, acn):
     """An MIT-style command (q_des, dq_des, tau_ff, PD gains per joint type) is stored whole: the
-    actions are 48 wide (q_des, kp, kd, kd dq_des + tau_ff), and the target the checks read is the
+    actions are 60 wide (q_des, kp, kd, dq_des, tau_ff), and the target the checks read is the
     one that drives the PD the same way; a partial set of columns is refused in one line."""
     kp, kd = (100.0, 80.0, 50.0) * 4, (2.0, 1.5, 1.0) * 4
     write_log(tmp_path / "log.csv", LogSpec(seconds=1.0, episodes=2, seed=5, feedforward=True, kp=kp, kd=kd))
@@ -96,9 +96,8 @@ def test_a_hybrid_command_is_stored_whole(tmp_path, acn):
     want = cols("action") + (np.array(kd) * cols("action_vel") + cols("action_torque")) / np.array(kp)
     m = load_measurements(tmp_path / "ds")
     np.testing.assert_allclose(m.targets[first], want, atol=1e-5)
-    np.testing.assert_allclose(m.action[first, 36:], np.array(kd) * cols("action_vel") + cols("action_torque"),
-                               atol=1e-5)
-    assert m.control.hybrid and m.action.shape[1] == 48
+    np.testing.assert_allclose(m.action[first, 36:], np.hstack([cols("action_vel"), cols("action_torque")]), atol=1e-5)
+    assert m.control.hybrid and m.action.shape[1] == 60
     assert np.abs(want - cols("action")).max() > 0.05  # the feedforward matters
     assert load(tmp_path / "ds").meta.info["acn"]["import"]["hybrid_command"] == ["action_vel", "action_torque"]
     table.pop("action_torque.RL_calf")
@@ -108,10 +107,39 @@ def test_a_hybrid_command_is_stored_whole(tmp_path, acn):
     assert not (tmp_path / "p").exists()
 
 
+def test_a_dataset_with_stop_38s_hybrid_layout_is_still_read(tmp_path):
+    """Datasets imported before the velocity target had its own place stored ``action.hybrid``
+    36 wide: kp, kd and one feedforward kd dq_des + tau_ff. They are read as a velocity target
+    of 0 with that feedforward: the same target and the same PD at nominal gains."""
+    from acn.datasets.importer import ImportConfig, import_log
+
+    write_log(tmp_path / "log.csv", LogSpec(seconds=1.0, episodes=1, seed=5, feedforward=True))
+    path = import_log(tmp_path / "log.csv", tmp_path / "ds", ImportConfig(50, 60.0, 1.5, 33.5))[0]
+    now = load_measurements(path)
+    for f in sorted(path.rglob("data/**/*.parquet")):  # rewrite the data and features as stop 38 wrote them
+        t = pq.read_table(f)
+        h = np.array(t.column("action.hybrid").to_pylist())
+        old = np.hstack([h[:, :24], h[:, 12:24] * h[:, 24:36] + h[:, 36:]]).astype(np.float32)
+        typ = pa.list_(pa.float32(), 36)
+        t = t.set_column(t.schema.get_field_index("action.hybrid"), pa.field("action.hybrid", typ),
+                         pa.array(list(old), type=typ))
+        pq.write_table(t, f)
+    info = json.loads((path / "meta" / "info.json").read_text())
+    names = info["features"]["action.hybrid"]["names"]
+    info["features"]["action.hybrid"].update(shape=[36], names=names[:24] + names[36:])
+    (path / "meta" / "info.json").write_text(json.dumps(info))
+    then = load_measurements(path)
+    assert then.action.shape == now.action.shape == (len(now), 60)
+    assert (then.action[:, 36:48] == 0).all() and np.abs(now.action[:, 36:48]).max() > 1.0
+    np.testing.assert_allclose(then.targets, now.targets, atol=1e-5)
+    np.testing.assert_allclose(then.action[:, 48:], now.action[:, 24:36] * now.action[:, 36:48] + now.action[:, 48:],
+                               atol=1e-4)
+
+
 def test_gains_sent_with_each_command_are_stored_with_the_actions(tmp_path, acn):
     """A controller that switches its legs between swing and stance gains sends them with every
     command (action_kp.*, action_kd.*): they are stored beside the targets (action.hybrid) and the
-    measurements' actions are 48 wide (targets, kp, kd, feedforward), which the model's PD uses
+    measurements' actions are 60 wide (targets, kp, kd, velocity targets, feedforward), which the model's PD uses
     step by step; gains of one kind for some joints only, or a negative gain, are refused in one
     line."""
     write_log(tmp_path / "log.csv", LogSpec(seconds=1.0, episodes=2, seed=5, stance_gains=(0.5, 1.5), noise=1.0))
@@ -124,8 +152,8 @@ def test_gains_sent_with_each_command_are_stored_with_the_actions(tmp_path, acn)
     kp_t, kd_t = cols("action_kp"), cols("action_kd")
     assert set(np.unique(kp_t)) == {30.0, 60.0} and set(np.unique(kd_t)) == {1.5, 2.25}  # swing, stance
     m = load_measurements(tmp_path / "ds")
-    assert m.control.hybrid and m.action.shape[1] == 48
-    np.testing.assert_allclose(m.action[first], np.hstack([cols("action"), kp_t, kd_t, 0 * kp_t]), atol=1e-5)
+    assert m.control.hybrid and m.action.shape[1] == 60
+    np.testing.assert_allclose(m.action[first], np.hstack([cols("action"), kp_t, kd_t, 0 * kp_t, 0 * kp_t]), atol=1e-5)
     assert load(tmp_path / "ds").meta.info["acn"]["hybrid_actions"] is True
     for dropped, message in ((["action_kp.FR_hip"], "action_kp.FR_hip"), ([], "negative")):
         bad = {k: v for k, v in table.items() if k not in dropped}

@@ -16,7 +16,7 @@ value > threshold, for a log of foot forces). Channels the log lacks are stored 
 metadata (``missing_channels``); joint positions and actions are the minimum. A hybrid
 (MIT-style) command, ``action_vel.<joint>`` (rad/s) and ``action_torque.<joint>`` (N m) beside the
 position target, and gains sent with each command (``action_kp.<joint>``, ``action_kd.<joint>``)
-are stored with the actions (``action.hybrid``: kp, kd and the feedforward kd dq_des + tau_ff),
+are stored with the actions (``action.hybrid``: kp, kd, dq_des and tau_ff),
 and the model's PD runs them as sent (``_hybrid_actions``, ``SimConfig.hybrid``).
 
 Transitions: s_{t+1} is the next row of the same episode. A row with a non-finite value, or a
@@ -395,12 +395,13 @@ def _hybrid_actions(action: np.ndarray, cols: dict[str, np.ndarray], cfg: Import
     """The actions for the model's PD law from a hybrid command, and which kinds
     (``HYBRID_COLUMNS``) the log had (each kind all 12 joints or none).
 
-    The motor runs kp (q_des - q) + kd (dq_des - qd) + tau_ff: the actions are (N, 48), q_des,
-    kp_t, kd_t (each row's where logged, else the imported gains) and the feedforward kd_t dq_des +
-    tau_ff, which the model's PD runs as such (``SimConfig.hybrid``; a row may have kp_t = 0, a
-    pure torque or damping command). Exact, with the gain scales on the feedback only and the dead
-    band on q_des - q (folding the feedforward into the target, q_des + f / kp, made a ``pd_gains``
-    fit scale it and the dead band act on it)."""
+    The motor runs kp (q_des - q) + kd (dq_des - qd) + tau_ff: the actions are (N, 60), q_des,
+    kp_t, kd_t (each row's where logged, else the imported gains), dq_des and tau_ff (0 where not
+    logged), which the model's PD runs as such (``SimConfig.hybrid``; a row may have kp_t = 0, a
+    pure torque or damping command). Exact, with each gain scale on what its gain multiplies and
+    the dead band on q_des - q (folding the feedforward into the target, q_des + f / kp, made a
+    ``pd_gains`` fit scale it and the dead band act on it; a feedforward kd_t dq_des + tau_ff
+    made the kd scale miss the velocity target)."""
     extra = {}
     for kind, columns in HYBRID_COLUMNS.items():
         have = [c for c in columns if c in cols]
@@ -419,11 +420,12 @@ def _hybrid_actions(action: np.ndarray, cols: dict[str, np.ndarray], cfg: Import
     n = len(action)
     kp = np.broadcast_to(extra.get("action_kp", per_joint(cfg.kp)), (n, NUM_JOINTS))
     kd = np.broadcast_to(extra.get("action_kd", per_joint(cfg.kd)), (n, NUM_JOINTS))
-    feedforward = kd * extra.get("action_vel", 0.0) + extra.get("action_torque", 0.0)
+    velocity = np.broadcast_to(extra.get("action_vel", 0.0), (n, NUM_JOINTS))
+    torque = np.broadcast_to(extra.get("action_torque", 0.0), (n, NUM_JOINTS))
     with np.errstate(invalid="ignore"):  # rows with a non-finite value are cut later
         if (kp < 0).any() or (kd < 0).any():
             raise UserError(f"{kinds}: a gain sent with a command is negative")
-    return np.concatenate([action, kp, kd, feedforward], axis=1), list(extra)
+    return np.concatenate([action, kp, kd, velocity, torque], axis=1), list(extra)
 
 
 def _reorder_legs(cols: dict[str, np.ndarray], order: tuple[str, ...]) -> dict[str, np.ndarray]:

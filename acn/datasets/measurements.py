@@ -39,7 +39,7 @@ class Measurements:
     """N transitions (float64); ``state`` and ``next_state`` hold NaN in missing channels."""
 
     state: np.ndarray        # (N, 43) s_t
-    action: np.ndarray       # (N, 12) a_t; (N, 48) a hybrid command (``SimConfig.hybrid``)
+    action: np.ndarray       # (N, 12) a_t; (N, 60) a hybrid command (``SimConfig.hybrid``)
     next_state: np.ndarray   # (N, 43) s_{t+1}
     effort: np.ndarray       # (N, 12) applied joint torque, N m (NaN if not logged)
     episode: np.ndarray      # (N,) int, rows of one episode are consecutive control steps
@@ -104,7 +104,7 @@ class Measurements:
                                   np.zeros(len(rows), int) if model is None else np.asarray(model))
 
     def previous_actions(self, rows: np.ndarray, count: int, targets: bool = False) -> np.ndarray:
-        """(len(rows), count, 12 or 48): the actions of the ``count`` steps before each row, oldest
+        """(len(rows), count, 12 or 60): the actions of the ``count`` steps before each row, oldest
         first (``targets``: their ``targets``, 12).
 
         Before an episode's first row its first action is repeated. Call it on whole
@@ -143,8 +143,11 @@ def load_measurements(path: str | Path, side: str = "source") -> Measurements:
                            + ["episode_index", "frame_index"] + [schema.ACTION_HYBRID] * hybrid,
                            optional=(key(schema.EFFORT),))
     state, action, next_state = cols[key(schema.STATE)], cols[key(schema.ACTION)], cols[key(schema.NEXT_STATE)]
-    if hybrid:  # the actions carry the gains and feedforward sent with them (SimConfig.hybrid)
+    if hybrid:  # the actions carry the gains, velocity targets and feedforward sent with them (SimConfig.hybrid)
         sent = cols[schema.ACTION_HYBRID]
+        if sent.shape[1] == 3 * ACTION_DIM:  # format 1: kp, kd, kd dq_des + tau_ff (the velocity target folded in)
+            sent = np.concatenate([sent[:, :2 * ACTION_DIM], np.zeros_like(sent[:, :ACTION_DIM]),
+                                   sent[:, 2 * ACTION_DIM:]], axis=1)
         if not (np.isfinite(sent).all() and (sent[:, :2 * ACTION_DIM] >= 0).all()):
             raise UserError(f"{path} has gains in {schema.ACTION_HYBRID} that are negative or not finite")
         action = np.concatenate([action, sent], axis=1)

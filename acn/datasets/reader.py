@@ -39,8 +39,8 @@ def read_info(path: str | Path) -> dict:
     return info
 
 
-_WIDTH = {schema.STATE: STATE_DIM, schema.NEXT_STATE: STATE_DIM, schema.ACTION: ACTION_DIM, schema.EFFORT: ACTION_DIM,
-          schema.ACTION_HYBRID: 3 * ACTION_DIM}
+_WIDTH = {schema.STATE: (STATE_DIM,), schema.NEXT_STATE: (STATE_DIM,), schema.ACTION: (ACTION_DIM,),
+          schema.EFFORT: (ACTION_DIM,), schema.ACTION_HYBRID: (len(schema.HYBRID_NAMES), 3 * ACTION_DIM)}  # 36: format 1
 INDEX_COLUMNS = ("episode_index", "frame_index", "timestamp")
 
 
@@ -74,9 +74,9 @@ def read_columns(path: str | Path, keys: list[str], optional: tuple[str, ...] = 
     finally:
         logging.disable(logging.NOTSET)
     for k, v in out.items():
-        width = _WIDTH.get(k.removeprefix(schema.TARGET_PREFIX))
-        if (v.ndim, v.shape[1:]) != ((2, (width,)) if width else (1, ())):
-            raise UserError(f"{path}: column {k!r} has shape {v.shape[1:]}, expected {(width,) if width else ()}")
+        widths = _WIDTH.get(k.removeprefix(schema.TARGET_PREFIX))
+        if not (v.ndim == 2 and v.shape[1] in widths if widths else v.ndim == 1):
+            raise UserError(f"{path}: column {k!r} has shape {v.shape[1:]}, expected {(widths[0],) if widths else ()}")
     return out, fps
 
 

@@ -9,9 +9,10 @@ Per frame (one control step t of one episode):
 ``next.observation.state``     s_{t+1} of the source (so the last transition is complete)
 ``next.fallen``                s_{t+1} of the source meets the fall rule
 ``next.done``                  this is the last frame of the episode
-``action.hybrid``              kp, kd and a feedforward torque (N m/rad, N m s/rad, N m; 12
-                               each) sent with ``action`` as a hybrid (MIT-style) command
-                               (``acn.hybrid_actions``; imported logs only)
+``action.hybrid``              kp, kd, a velocity target and a feedforward torque (N m/rad,
+                               N m s/rad, rad/s, N m; 12 each) sent with ``action`` as a hybrid
+                               (MIT-style) command (``acn.hybrid_actions``; imported logs only;
+                               36 wide, kp, kd and kd dq_des + tau_ff, before format 2)
 ``target.*``                   the same four columns and ``target.next.fallen`` for the
                                target simulator (paired datasets only); ``target.action``
                                differs from ``action`` only when a corrector is applied
@@ -26,7 +27,7 @@ from __future__ import annotations
 from acn.toolkit.state import ACTION_DIM, ACTION_NAMES, STATE_DIM, STATE_NAMES
 
 ACN_KEY = "acn"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: action.hybrid with the velocity target (48 wide, was 36)
 ROBOT_TYPE = "unitree_a1"
 TARGET_PREFIX = "target."
 
@@ -37,7 +38,7 @@ NEXT_STATE = "next.observation.state"
 NEXT_FALLEN = "next.fallen"
 DONE = "next.done"
 ACTION_HYBRID = "action.hybrid"
-HYBRID_NAMES = tuple(f"{g}.{j}" for g in ("kp", "kd", "torque") for j in ACTION_NAMES)
+HYBRID_NAMES = tuple(f"{g}.{j}" for g in ("kp", "kd", "vel", "torque") for j in ACTION_NAMES)
 PER_SIMULATOR = (STATE, ACTION, EFFORT, NEXT_STATE, NEXT_FALLEN)
 
 
@@ -57,7 +58,7 @@ def features(paired: bool, hybrid: bool = False) -> dict[str, dict]:
         out.update({target_key(k): v for k, v in per_sim.items()})
     out[DONE] = flag
     if hybrid:
-        out[ACTION_HYBRID] = {"dtype": "float32", "shape": (3 * ACTION_DIM,), "names": list(HYBRID_NAMES)}
+        out[ACTION_HYBRID] = {"dtype": "float32", "shape": (len(HYBRID_NAMES),), "names": list(HYBRID_NAMES)}
     return out
 
 

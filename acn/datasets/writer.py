@@ -34,8 +34,9 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
 
 def episode_columns(ep: Episode, paired: bool) -> dict[str, np.ndarray]:
-    """The per-frame feature columns of one episode (no index columns); an action 48 wide
-    (targets, kp, kd, feedforward: ``SimConfig.hybrid``) goes into ``action`` and ``action.hybrid``."""
+    """The per-frame feature columns of one episode (no index columns); an action 60 wide
+    (targets, kp, kd, velocity targets, feedforward: ``SimConfig.hybrid``) goes into ``action`` and
+    ``action.hybrid``."""
     cols: dict[str, np.ndarray] = {}
 
     def put(tr: Trace, prefix: str) -> None:

@@ -13,13 +13,14 @@ From the action a_t to the torque on each joint, per physics step (all per joint
 
 **Hybrid (MIT-style) commands** (``SimConfig.hybrid``: gains and a feedforward sent with every
 target, by a controller that switches its legs between stance and swing gains, an MPC that sends
-stance legs pure torques with kp 0, ...): the action is 48 numbers, the target u, kp_t, kd_t and
-a feedforward torque f_t (12 each; f_t = kd_t dq_des + tau_ff), and step 3 reads ``tau_cmd =
-clip(kp_scale kp_t e - kd_scale kd_t qdot + f_t, ...)``: the gain scales act on the feedback,
-the dead band on e = u - reading, not on the feedforward. Latency delays the streams together,
-so a physics step's command is the average of the laws in force during it: ``kp_scale (P - G
-reading) - kd_scale D qdot + F`` with P = mean(kp_t u), G = mean(kp_t), D = mean(kd_t), F =
-mean(f_t) (``commands`` returns (P, G, D, F), 48 columns; the dead band acts on P / G - reading).
+stance legs pure torques with kp 0, ...): the action is 60 numbers (``HYBRID_PARTS``), the target
+u, kp_t, kd_t, a velocity target v_t and a feedforward torque tau_t (12 each), and step 3 reads
+``tau_cmd = clip(kp_scale kp_t e + kd_scale kd_t (v_t - qdot) + tau_t, ...)``: the gain scales
+act on what each gain multiplies, the dead band on e = u - reading, not on the feedforward.
+Latency delays the streams together, so a physics step's command is the average of the laws in
+force during it: ``kp_scale (P - G reading) - kd_scale D qdot + F`` with P = mean(kp_t u), G =
+mean(kp_t), D = mean(kd_t), F = mean(kd_scale kd_t v_t + tau_t) (``commands`` returns (P, G, D,
+F), 48 columns; the dead band acts on P / G - reading).
 
 With nominal parameters this is exactly ``SimConfig``'s PD law. MuJoCo realises steps 2-4 with
 native actuator parameters when there is no dead band (``Actuation.native``); otherwise, and
@@ -39,14 +40,18 @@ from acn.toolkit.robot import per_joint
 from acn.toolkit.state import NUM_JOINTS
 
 
+HYBRID_PARTS = ("target", "kp", "kd", "velocity", "torque")  # a hybrid command: rad, N m/rad, N m s/rad, rad/s, N m
+
+
 def position_targets(actions: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """(..., 12) position targets of actions: 12-wide ones as they are; of 48-wide hybrid commands
-    (u, kp, kd, f; module docstring) the target at which the command's own PD gives its torque,
-    u + f / kp, and the joint angle ``q`` where kp is 0 (no position loop). What the data checks
-    and the candidate terms read as "the target"."""
+    """(..., 12) position targets of actions: 12-wide ones as they are; of 60-wide hybrid commands
+    (u, kp, kd, v, tau; module docstring) the target at which the command's own PD gives its
+    torque at rest, u + (kd v + tau) / kp, and the joint angle ``q`` where kp is 0 (no position
+    loop). What the data checks and the candidate terms read as "the target"."""
     if actions.shape[-1] == NUM_JOINTS:
         return actions
-    u, kp, _, f = np.split(actions, 4, axis=-1)
+    u, kp, kd, v, tau = np.split(actions, len(HYBRID_PARTS), axis=-1)
+    f = kd * v + tau
     return np.where(kp > 0, u + np.divide(f, kp, out=np.zeros_like(f), where=kp > 0), q)
 
 
@@ -66,7 +71,7 @@ class Actuation:
     substeps: int
     hybrid: bool = False  # hybrid commands: gains and feedforward come with each target (module docstring)
     kp_scale: np.ndarray | float = 1.0  # multiplies the kp a hybrid command sends (``kp`` above includes it)
-    kd_scale: np.ndarray | float = 1.0  # the same for kd
+    kd_scale: np.ndarray | float = 1.0  # the same for kd, on -qdot and on the velocity target
 
     @classmethod
     def from_config(cls, config) -> "Actuation":
@@ -79,6 +84,11 @@ class Actuation:
                    deadband=p.backlash / 2.0, latency=float(p.latency), physics_dt=config.physics_dt,
                    substeps=config.substeps, hybrid=config.hybrid, kp_scale=p.kp_scale.copy(),
                    kd_scale=p.kd_scale.copy())
+
+    @property
+    def command_width(self) -> int:
+        """Numbers per physics-step command (``commands``): 12, or 48 (P, G, D, F) for hybrid ones."""
+        return 4 * NUM_JOINTS if self.hybrid else NUM_JOINTS
 
     @property
     def native(self) -> bool:
@@ -110,13 +120,13 @@ class Actuation:
     def commands(self, actions: np.ndarray) -> np.ndarray:
         """Per-physics-step commands for consecutive control steps.
 
-        ``actions`` (..., history + K, 12), or 48 wide (hybrid): the ``history`` previous actions,
+        ``actions`` (..., history + K, 12), or 60 wide (hybrid): the ``history`` previous actions,
         then the K actions to apply. Returns (..., K * substeps, 12), or for hybrid commands
         (..., K * substeps, 48): (P, G, D, F) of the module docstring.
         """
         if self.hybrid:
-            u, kp, kd, f = np.split(actions, 4, axis=-1)
-            actions = np.concatenate([kp * u, kp, kd, f], axis=-1)
+            u, kp, kd, v, tau = np.split(actions, len(HYBRID_PARTS), axis=-1)
+            actions = np.concatenate([kp * u, kp, kd, self.kd_scale * kd * v + tau], axis=-1)
         hist = self.history
         if hist == 0 and self.latency == 0:
             return np.repeat(actions, self.substeps, axis=-2)

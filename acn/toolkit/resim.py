@@ -78,7 +78,7 @@ class Resimulator:
         """Predict K control steps from each of N states.
 
         ``states`` (N, 43) recorded s_t; ``actions`` (N, K, A) or (N, A) the actions from t on
-        (A = ``SimConfig.action_dim``: 12, or 48 with the gains); ``previous`` (N, P, A) the actions
+        (A = ``SimConfig.action_dim``: 12, or 60 with the gains); ``previous`` (N, P, A) the actions
         before t, oldest first (optional); ``model`` (N,) index into the models per row (default:
         model 0 for every row).
         """
@@ -127,7 +127,7 @@ class Resimulator:
         layout, sub, k = self._layout, self.configs[0].substeps, actions.shape[1]
         offset = np.stack([a.offset for a in self.actuation])[index]
         frame = np.stack([c.params.base_frame_offset for c in self.configs])[index]
-        width = actions.shape[2]  # Actuation.commands keeps the actions' width
+        width = self.actuation[0].command_width
         commands = np.empty((len(states), k * sub, width))
         for m in np.unique(index):  # per-physics-step commands carry each model's latency
             rows = np.flatnonzero(index == m)

@@ -151,9 +151,9 @@ class Problem:
 
 
 def corrected(corrector, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
-    """``actions`` (N, 12 or 48) corrected from ``states`` (N, 43) by a corrector of position
+    """``actions`` (N, 12 or 60) corrected from ``states`` (N, 43) by a corrector of position
     targets. A hybrid command's q_des moves by the correction of its target (``position_targets``);
-    its gains and feedforward stay as sent."""
+    its gains, velocity target and feedforward stay as sent."""
     if actions.shape[1] == ACTION_DIM:
         return corrector.correct(states, actions)
     targets = position_targets(actions, states[:, SLICES["joint_pos"]])

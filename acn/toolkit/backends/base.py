@@ -36,7 +36,7 @@ import numpy as np
 
 from acn.errors import UserError
 from acn.toolkit import frames
-from acn.toolkit.actuation import Actuation
+from acn.toolkit.actuation import HYBRID_PARTS, Actuation
 from acn.toolkit.robot import GRAVITY, STANCE, STANDING_HEIGHT, ModelParams, per_joint
 from acn.toolkit.rotations import quat_to_matrix, quat_to_rpy, rpy_to_quat
 from acn.toolkit.state import ACTION_DIM, DYNAMIC_GROUPS, FOOT_NAMES, NUM_JOINTS, SLICES, STATE_DIM
@@ -75,9 +75,9 @@ class SimConfig:
     kd: JointGains = 1.5          # N m s/rad, position-mode PD damping (every joint, or per joint)
     torque_limit: float = 33.5    # N m, applied to every joint in both modes
     params: ModelParams = field(default_factory=ModelParams)
-    # Hybrid (MIT-style) commands (position mode; ``acn.toolkit.actuation``): an action is 48
-    # numbers, the 12 targets, the 12 kp, the 12 kd and the 12 feedforward torques sent together
-    # (kp, kd above are then only recorded, not used by the law).
+    # Hybrid (MIT-style) commands (position mode; ``acn.toolkit.actuation``): an action is 60
+    # numbers, the 12 targets, kp, kd, velocity targets and feedforward torques sent together
+    # (``HYBRID_PARTS``; kp, kd above are then only recorded, not used by the law).
     hybrid: bool = False
 
     def __post_init__(self) -> None:
@@ -89,9 +89,9 @@ class SimConfig:
 
     @property
     def action_dim(self) -> int:
-        """Numbers per action: 12 targets or torques; 48 with the gains and feedforward torques
-        (``hybrid``)."""
-        return 4 * ACTION_DIM if self.hybrid else ACTION_DIM
+        """Numbers per action: 12 targets or torques; 60 with the gains, velocity targets and
+        feedforward torques (``hybrid``)."""
+        return len(HYBRID_PARTS) * ACTION_DIM if self.hybrid else ACTION_DIM
 
     def validate(self) -> None:
         if self.action_mode not in ACTION_MODES:
@@ -107,13 +107,13 @@ class SimConfig:
 
 
 def pd_torque(target: np.ndarray, q: np.ndarray, qd: np.ndarray, cfg: SimConfig) -> np.ndarray:
-    """The position-mode control law, N m (see module docstring); ``target`` (..., 12), or 48 wide
-    with the gains and feedforward sent with it (``SimConfig.hybrid``)."""
-    if target.shape[-1] == 4 * NUM_JOINTS:
-        target, kp, kd, f = np.split(target, 4, axis=-1)
+    """The position-mode control law, N m (see module docstring); ``target`` (..., 12), or 60 wide
+    with the gains, velocity target and feedforward sent with it (``SimConfig.hybrid``)."""
+    if target.shape[-1] == len(HYBRID_PARTS) * NUM_JOINTS:
+        target, kp, kd, v, tau = np.split(target, len(HYBRID_PARTS), axis=-1)
     else:
-        kp, kd, f = per_joint(cfg.kp), per_joint(cfg.kd), 0.0
-    return np.clip(kp * (target - q) - kd * qd + f, -cfg.torque_limit, cfg.torque_limit)
+        kp, kd, v, tau = per_joint(cfg.kp), per_joint(cfg.kd), 0.0, 0.0
+    return np.clip(kp * (target - q) + kd * (v - qd) + tau, -cfg.torque_limit, cfg.torque_limit)
 
 
 def physics_hz_for(control_hz: int, physics_hz: int | None = None) -> int:
@@ -224,7 +224,7 @@ class Backend(ABC):
         self._state = None
 
     def step(self, action: np.ndarray) -> np.ndarray:
-        """Advance one control step under ``action`` (12,), or (48,) with the gains sent with it
+        """Advance one control step under ``action`` (12,), or (60,) with the gains sent with it
         (``SimConfig.hybrid``); return mean applied torque (12,), N m.
 
         Raises ``SimulationDiverged`` if the simulator produced an absurd state.

@@ -10,8 +10,9 @@ stepped with ``mj_step`` or re-simulated in batches with ``mujoco.rollout``:
 - position mode with a dead band (backlash), which no affine actuator can express: plain
   motors (``tau = ctrl``), the torque computed by ``Actuation.torque`` every physics step;
 - hybrid commands (``SimConfig.hybrid``): four actuators per joint, whose 48 controls are
-  ``Actuation.commands``' (P, G, D, F): a motor ``s kp_scale P``, an affine gain ``G (-s kp_scale
-  (q + offset))``, one ``D (-s kd_scale qdot)`` and a motor ``s F``, their sum limited to +-s limit
+  ``Actuation.commands``' (P, G, D, F; F carries the velocity target's term kd_scale kd_t v_t): a
+  motor ``s kp_scale P``, an affine gain ``G (-s kp_scale (q + offset))``, one ``D (-s kd_scale
+  qdot)`` and a motor ``s F``, their sum limited to +-s limit
   at the joint (``actfrcrange``); with a dead band the first motors carry the torque and the 36
   others take their controls with no force.
 
