@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import os
 import shlex
 import sys
@@ -603,6 +604,12 @@ def import_main(argv: list[str] | None = None) -> int:
         if r.partial_effort:
             print(f"efforts of {len(r.partial_effort)} of 12 joints ({', '.join(r.partial_effort)}): not stored; "
                   "applied torques are all 12 joints' or none")
+        if r.suggested_map:
+            print(f"columns named like channels the log lacks, as a --map file (check units and leg order; import "
+                  f"again with it): {json.dumps(r.suggested_map)}")
+        if r.unused:
+            print(f"columns no channel reads ({len(r.unused)}): {', '.join(r.unused[:12])}"
+                  f"{', ...' if len(r.unused) > 12 else ''} (--map names a column for a channel)")
         if r.missing:
             print(f"not in the log (stored as NaN, not compared): {', '.join(r.missing)}")
             if _estimated(r.missing):

@@ -14,7 +14,7 @@ from robot_log import LogSpec, simulate, write_log
 
 from acn.datasets.importer import resolve_columns
 from acn.datasets.measurements import fill_derived, load_measurements
-from acn.toolkit.state import GROUPS, JOINT_NAMES, STATE_NAMES
+from acn.toolkit.state import GROUPS, JOINT_NAMES, SLICES, STATE_NAMES
 
 CONTROL = ["--control-hz", "50", "--kp", "60", "--kd", "1.5", "--torque-limit", "33.5"]
 
@@ -78,6 +78,32 @@ def test_a_control_rate_that_does_not_divide_1_khz_gets_the_nearest_physics_rate
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [
         "acn-import: error: --physics-hz (1000) must be a multiple of --control-hz (60)"], r.stderr
     assert not (tmp_path / "e").exists()
+
+
+def test_joint_columns_named_in_other_words_get_a_draft_map(tmp_path, acn):
+    """A log whose joints are named as ROS names them (``FR_hip_joint`` for the angle, ``FR_hip_dq``
+    for the velocity) lacks the schema's joint positions: the one-line error carries a --map file
+    built from the names, which imports it; columns no channel reads are listed."""
+    table = simulate(LogSpec(seconds=1.0, episodes=1, seed=5))
+    renamed = {(k.replace("_pos", "_joint") if k.endswith("_pos") and k[:2] in ("FR", "FL", "RR", "RL")
+                else k.replace("_vel", "_dq") if k.endswith("_vel") and k[:2] in ("FR", "FL", "RR", "RL") else k): v
+               for k, v in table.items()}
+    renamed["motor_temperature"] = np.full(len(table["timestamp"]), 40.0)
+    pacsv.write_csv(pa.table(renamed), str(tmp_path / "log.csv"))
+    r = acn("import", str(tmp_path / "log.csv"), "--out", str(tmp_path / "ds"), *CONTROL)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and "columns named like them, as a --map file" in lines[0], r.stderr
+    draft = json.loads(lines[0].split("(check units and leg order): ", 1)[1])
+    assert draft["FR_hip_pos"] == "FR_hip_joint" and draft["RL_calf_vel"] == "RL_calf_dq" and len(draft) == 24
+    assert not (tmp_path / "ds").exists()
+    (tmp_path / "map.json").write_text(json.dumps(draft))
+    r = acn("import", str(tmp_path / "log.csv"), "--out", str(tmp_path / "ds"), "--map", str(tmp_path / "map.json"),
+            *CONTROL)
+    assert r.returncode == 0 and "columns no channel reads (1): motor_temperature" in r.stdout, r.stdout + r.stderr
+    assert "not in the log" not in r.stdout  # every channel found
+    m = load_measurements(tmp_path / "ds")
+    np.testing.assert_allclose(m.state[:10, SLICES["joint_vel"]],
+                               np.column_stack([table[f"{j}_vel"][:10] for j in JOINT_NAMES]), atol=1e-5)
 
 
 def test_a_hybrid_command_is_stored_whole(tmp_path, acn):

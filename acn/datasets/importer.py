@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from acn.datasets import checks, schema
+from acn.datasets import checks, naming, schema
 from acn.errors import UserError
 from acn.jsonfile import read_json
 from acn.toolkit.actuation import position_targets
@@ -104,6 +104,8 @@ class ImportReport:
     hybrid: list[str] = field(default_factory=list)  # the kinds of hybrid command columns (stored with the actions)
     quaternion: bool = False  # the trunk's orientation came from base_quat_* (converted to Euler angles)
     partial_effort: list[str] = field(default_factory=list)  # effort.* columns of fewer than 12 joints: not stored
+    unused: list[str] = field(default_factory=list)  # the log's columns no channel reads
+    suggested_map: dict[str, str] = field(default_factory=dict)  # unused columns named like channels it lacks (naming)
 
     def quaternion_hint(self) -> str | None:
         """A line where the orientation came from a quaternion and a check finds the trunk's
@@ -268,7 +270,11 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
     if sorted(cfg.leg_order) != sorted(FOOT_NAMES):
         raise UserError(f"--leg-order must name each of {', '.join(FOOT_NAMES)} once, got {', '.join(cfg.leg_order)}")
     table = read_table(log)
-    cols = resolve_columns(table, read_map(Path(map_path) if map_path else None))
+    mapping = read_map(Path(map_path) if map_path else None)
+    cols = resolve_columns(table, mapping)
+    read = {e if isinstance(e, str) else e["column"] for e in mapping.values()} | set(KNOWN_COLUMNS)
+    unused = [c for c in table if c not in read]
+    suggested = naming.suggest_map(unused, [c for c in naming.PER_JOINT if c not in cols])
     quaternion = any(c in cols for c in QUAT_COLUMNS)
     # a channel the logger wrote as an empty (all-NaN) column is a channel it did not log
     cols = {k: v for k, v in cols.items() if k in INDEX_COLUMNS or np.isfinite(v).any()}
@@ -282,6 +288,8 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
         arrays = sorted({k.split("[")[0] for k in table if k.endswith("]") and "[" in k})
         hint = (f" (its array columns are read one element each, {arrays[0]}[0], {arrays[0]}[1], ...: map them, "
                 f'e.g. {{"FR_hip_pos": "{arrays[0]}[0]"}})') if arrays else ""
+        if set(suggested) & set(joint_pos + actions):
+            hint += f"; columns named like them, as a --map file (check units and leg order): {json.dumps(suggested)}"
         raise UserError(f"{log} lacks joint positions or actions, the minimum a measurement needs: "
                         f"missing {', '.join(joint_pos + actions)}{hint}")
     if n < 2:
@@ -337,7 +345,8 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
                               cut_nonfinite=int((~good).sum()), time_breaks=reasons.get("split_time_gap", 0),
                               dropped_short=dropped, missing=missing,
                               findings=checks.check(written, period, cfg.action_mode), step_spread=spread,
-                              hybrid=hybrid, quaternion=quaternion, partial_effort=partial_effort)
+                              hybrid=hybrid, quaternion=quaternion, partial_effort=partial_effort, unused=unused,
+                              suggested_map=suggested)
         writer.meta.info[schema.ACN_KEY]["import"] = {"file": log.name, "rows": n, "transitions": transitions,
                           "rows_cut_nonfinite": report.cut_nonfinite, "time_step_breaks": report.time_breaks,
                           "time_step_spread": round(spread, 4), "hybrid_command": hybrid,

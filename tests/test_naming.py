@@ -1,0 +1,42 @@
+"""acn-import's draft map: log columns named like the schema's per-joint channels in other words."""
+
+from __future__ import annotations
+
+import pytest
+
+from acn.datasets.naming import channel_of, suggest_map, words
+
+
+@pytest.mark.parametrize("name, channel", [
+    ("FR_hip_joint", "FR_hip_pos"),              # ROS joint names: the column holds the angle
+    ("FR_hip_dq", "FR_hip_vel"),
+    ("front_left_knee_position", "FL_calf_pos"),
+    ("RH_HFE_vel", "RR_thigh_vel"),              # ANYmal's leg and joint names
+    ("LH_HAA_tau", "effort.RL_hip"),
+    ("q_des_FL_calf", "action.FL_calf"),
+    ("FR_thigh_cmd", "action.FR_thigh"),
+    ("dq_des.RR_calf", "action_vel.RR_calf"),
+    ("kp_RL_thigh", "action_kp.RL_thigh"),
+    ("motorTorqueFrontRightHip", "effort.FR_hip"),  # camel case
+    ("rearLeftCalfQ", "RL_calf_pos"),
+])
+def test_a_column_named_in_other_words_is_matched_to_its_channel(name, channel):
+    assert channel_of(name) == channel, words(name)
+
+
+@pytest.mark.parametrize("name", [
+    "q[3]",             # a numbered joint: its order is the user's to state
+    "FR_hip",           # no quantity
+    "FR_FL_hip_pos",    # two legs
+    "FR_hip_knee_pos",  # two joints
+    "FR_hip_tau_ff",    # a feedforward torque: a command or the action of a torque-mode log
+    "base_pos_x",
+    "timestamp",
+])
+def test_an_ambiguous_column_is_not_matched(name):
+    assert channel_of(name) is None
+
+
+def test_a_channel_two_columns_describe_is_left_to_the_user():
+    columns = ["FR_hip_dq", "FR_hip_qd_filtered", "FL_hip_dq"]
+    assert suggest_map(columns, ["FR_hip_vel", "FL_hip_vel", "RR_hip_vel"]) == {"FL_hip_vel": "FL_hip_dq"}
