@@ -17,7 +17,7 @@ from typing import Callable, Iterator, NoReturn
 
 from acn.errors import UserError
 
-EXIT_USAGE, EXIT_INTERRUPTED = 2, 130
+EXIT_USAGE, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 2, 130, 141  # 141: 128 + SIGPIPE
 
 
 class _Parser(argparse.ArgumentParser):
@@ -34,6 +34,9 @@ def _run(prog: str, body: Callable[[], int | None]) -> int:
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except BrokenPipeError:  # the reader of the output went away (`| head`): stop quietly, as a shell tool does
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error when Python flushes it
+        return EXIT_BROKEN_PIPE
 
 
 def _number(kind: type, minimum: float, inclusive: bool) -> Callable[[str], float]:

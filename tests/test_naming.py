@@ -30,7 +30,6 @@ def test_a_column_named_in_other_words_is_matched_to_its_channel(name, channel):
     "FR_FL_hip_pos",    # two legs
     "FR_hip_knee_pos",  # two joints
     "FR_hip_tau_ff",    # a feedforward torque: a command or the action of a torque-mode log
-    "base_pos_x",
     "timestamp",
 ])
 def test_an_ambiguous_column_is_not_matched(name):
@@ -40,3 +39,32 @@ def test_an_ambiguous_column_is_not_matched(name):
 def test_a_channel_two_columns_describe_is_left_to_the_user():
     columns = ["FR_hip_dq", "FR_hip_qd_filtered", "FL_hip_dq"]
     assert suggest_map(columns, ["FR_hip_vel", "FL_hip_vel", "RR_hip_vel"]) == {"FL_hip_vel": "FL_hip_dq"}
+
+
+@pytest.mark.parametrize("name, channel", [
+    ("gyro_x", "base_angvel_x"),
+    ("imu.angular_velocity.z", "base_angvel_z"),
+    ("linear_acceleration.y", "imu_acc_y"),
+    ("accelerometerZ", "imu_acc_z"),
+    ("orientation.w", "base_quat_w"),
+    ("imu_quaternion_x", "base_quat_x"),
+    ("roll", "base_roll"),
+    ("rpy_z", "base_yaw"),
+    ("base_vel_x", "base_linvel_x"),
+    ("trunk_position_z", "base_pos_z"),
+    ("FL_foot_contact", "FL_contact"),
+])
+def test_a_trunk_or_contact_column_named_in_other_words_is_matched(name, channel):
+    assert channel_of(name) == channel, words(name)
+
+
+@pytest.mark.parametrize("name", [
+    "cmd_vel_x",      # the velocity a locomotion policy is commanded, not the trunk's
+    "foot_pos_x",     # a foot's, not the trunk's
+    "yaw_rate",       # a rate, not the angle (and no axis)
+    "pos_xy",
+    "acc_x_y",
+    "FR_foot_force",  # a force: a contact flag needs its threshold
+])
+def test_an_ambiguous_trunk_column_is_not_matched(name):
+    assert channel_of(name) is None

@@ -274,7 +274,11 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
     cols = resolve_columns(table, mapping)
     read = {e if isinstance(e, str) else e["column"] for e in mapping.values()} | set(KNOWN_COLUMNS)
     unused = [c for c in table if c not in read]
-    suggested = naming.suggest_map(unused, [c for c in naming.PER_JOINT if c not in cols])
+    suggested = naming.suggest_map(unused, [c for c in naming.CHANNELS if c not in cols])
+    euler, quat = GROUPS["base_rpy"], QUAT_COLUMNS  # one orientation: the one the log has, else a whole quaternion
+    drop = quat if any(c in cols for c in euler) else euler if any(c in cols for c in quat) or \
+        all(c in suggested for c in quat) else ()
+    suggested = {k: v for k, v in suggested.items() if k not in drop}
     quaternion = any(c in cols for c in QUAT_COLUMNS)
     # a channel the logger wrote as an empty (all-NaN) column is a channel it did not log
     cols = {k: v for k, v in cols.items() if k in INDEX_COLUMNS or np.isfinite(v).any()}

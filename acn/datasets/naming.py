@@ -1,10 +1,11 @@
-"""Draft ``--map`` entries for a log whose joint columns use other names (``acn-import --suggest-map``).
+"""Draft ``--map`` entries for a log whose columns use other names than the schema's (``acn-import``).
 
-A column is matched to one of the schema's per-joint channels by the words in its name: the leg
-(``FR``, ``front_right``, ``RF``, ...), the joint (``hip`` / ``abad`` / ``HAA``, ``thigh`` /
-``HFE``, ``calf`` / ``knee`` / ``KFE``) and the quantity (angle, velocity, command, torque, gains).
-Only a column that names one leg, one joint and one quantity, and the only such column for that
-channel, is proposed (a column named by its joint alone, ``FR_hip_joint``, is taken for the
+A column is matched to one of the schema's channels by the words in its name: for a joint, the
+leg (``FR``, ``front_right``, ``RF``, ...), the joint (``hip`` / ``abad`` / ``HAA``, ``thigh`` /
+``HFE``, ``calf`` / ``knee`` / ``KFE``) and the quantity (angle, velocity, command, torque, gains);
+for the trunk, one axis and one quantity (``gyro_x``, ``angular_velocity.z``, ``acc_y``,
+``orientation.w``, ``roll``, ``base_vel_x``); for a foot, its leg and ``contact``. Only a column
+that names one of each, and the only such column for that channel, is proposed (a column named by its joint alone, ``FR_hip_joint``, is taken for the
 angle); units are not guessed (a map entry's ``scale`` converts them). Numbered
 joints (``q[0]`` ... ``q[11]``) carry no words: their order is the user's to state.
 """
@@ -13,7 +14,7 @@ from __future__ import annotations
 
 import re
 
-from acn.toolkit.state import JOINT_NAMES
+from acn.toolkit.state import JOINT_NAMES, STATE_NAMES
 
 _LEGS = {  # the schema's leg -> word sets any one of which names it
     "FR": ({"fr"}, {"rf"}, {"front", "right"}),
@@ -47,11 +48,17 @@ def _one(found: list[str]) -> str | None:
 
 
 def channel_of(name: str) -> str | None:
-    """The schema's per-joint channel a column name describes, or None where it names no single
-    leg, joint and quantity (``FR_hip_dq`` -> ``FR_hip_vel``; ``q_des_FL_calf`` -> ``action.FL_calf``)."""
+    """The schema's channel a column name describes, or None where it is ambiguous
+    (``FR_hip_dq`` -> ``FR_hip_vel``; ``q_des_FL_calf`` -> ``action.FL_calf``; ``gyro_x`` ->
+    ``base_angvel_x``; ``FR_foot_contact`` -> ``FR_contact``)."""
     w = words(name)
-    leg = _one([g for g, options in _LEGS.items() if any(o <= w for o in options)])
-    joint = _one([j for j, options in _JOINTS.items() if options & w])
+    legs = [g for g, options in _LEGS.items() if any(o <= w for o in options)]
+    joints = [j for j, options in _JOINTS.items() if options & w]
+    if not legs and not joints:
+        return _trunk_channel(w)
+    leg, joint = _one(legs), _one(joints)
+    if leg is not None and not joints and "contact" in w and not _COMMAND & w:
+        return f"{leg}_contact"
     if leg is None or joint is None:
         return None
     command = bool(_COMMAND & w)
@@ -66,6 +73,44 @@ def channel_of(name: str) -> str | None:
     return pattern.format(j=f"{leg}_{joint}") if pattern else None
 
 
+_TRUNK = {  # the trunk's quantities (measured, not commanded) -> word sets that name them
+    "quat": {"quat", "quaternion", "orientation", "orient"},
+    "angvel": {"gyro", "gyroscope", "angvel", "omega"},
+    "acc": {"acc", "accel", "accelerometer", "acceleration", "linacc"},
+    "linvel": {"vel", "velocity", "linvel"},
+    "pos": {"pos", "position", "base", "trunk", "body"},
+}
+_ANGULAR = {"angular", "ang", "rot", "rate"}
+_NOT_TRUNK = {"foot", "feet", "toe", "leg", "joint", "motor", "force"}  # words of other bodies' quantities
+
+
+def _trunk_channel(w: set[str]) -> str | None:
+    """A trunk channel (position, Euler angle, quaternion, velocities, accelerometer) from words
+    naming one axis and one quantity; commanded values (``cmd_vel_x``) are not measurements."""
+    if _COMMAND & w or _NOT_TRUNK & w:
+        return None
+    angles = [a for a in ("roll", "pitch", "yaw") if a in w]
+    axes = [a for a in ("x", "y", "z") if a in w]
+    if {"rpy", "euler"} & w and len(axes) == 1 and not angles:  # rpy_x: the roll
+        angles = [("roll", "pitch", "yaw")[("x", "y", "z").index(axes[0])]]
+        axes = []
+    if angles:
+        moving = _ANGULAR | _TRUNK["angvel"] | _TRUNK["linvel"] | {"dot", "speed"}
+        return f"base_{angles[0]}" if len(angles) == 1 and not axes and not moving & w else None
+    if "w" in w and _TRUNK["quat"] & w and not axes:
+        return "base_quat_w"
+    if len(axes) != 1:
+        return None
+    kinds = [k for k, options in _TRUNK.items() if options & w]
+    if "linvel" in kinds and _ANGULAR & w:  # angular_velocity_x
+        kinds = [k for k in kinds if k != "linvel"] + ["angvel"]
+    kinds = [k for k in dict.fromkeys(kinds) if k != "pos"] or kinds  # "base_vel_x": the velocity
+    if len(kinds) != 1:
+        return None
+    return {"quat": "base_quat_{a}", "angvel": "base_angvel_{a}", "acc": "imu_acc_{a}", "linvel": "base_linvel_{a}",
+            "pos": "base_pos_{a}"}[kinds[0]].format(a=axes[0])
+
+
 def suggest_map(columns: list[str], wanted: list[str]) -> dict[str, str]:
     """Draft map entries {channel: column} for the ``wanted`` channels from the log's ``columns``:
     each channel with exactly one column that describes it (``channel_of``)."""
@@ -77,5 +122,5 @@ def suggest_map(columns: list[str], wanted: list[str]) -> dict[str, str]:
     return {ch: cs[0] for ch in wanted if len(cs := found.get(ch, [])) == 1}
 
 
-PER_JOINT = tuple(f"{j}_{q}" for q in ("pos", "vel") for j in JOINT_NAMES) + tuple(
+CHANNELS = STATE_NAMES + tuple(f"base_quat_{a}" for a in "wxyz") + tuple(
     f"{k}.{j}" for k in ("action", "effort", "action_vel", "action_kp", "action_kd") for j in JOINT_NAMES)
