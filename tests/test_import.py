@@ -106,6 +106,27 @@ def test_joint_columns_named_in_other_words_get_a_draft_map(tmp_path, acn):
                                np.column_stack([table[f"{j}_vel"][:10] for j in JOINT_NAMES]), atol=1e-5)
 
 
+def test_the_draft_map_names_one_orientation(tmp_path):
+    """A log with its orientation as ``orientation.w/x/y/z`` and no Euler angles gets the
+    quaternion drafted (and no Euler angle, although ``roll`` is there too); a log with the
+    schema's Euler angles gets no quaternion drafted."""
+    from acn.datasets.importer import ImportConfig, import_log
+    from acn.toolkit.rotations import rpy_to_quat
+
+    table = simulate(LogSpec(seconds=1.0, episodes=1, seed=5))
+    x, y, z, w = rpy_to_quat(np.stack([table["base_roll"], table["base_pitch"], table["base_yaw"]]))
+    quat = {"orientation.w": w, "orientation.x": x, "orientation.y": y, "orientation.z": z}
+    cfg = ImportConfig(50, 60.0, 1.5, 33.5)
+    without = {k: v for k, v in table.items() if k not in ("base_roll", "base_pitch", "base_yaw")}
+    pacsv.write_csv(pa.table({**without, **quat, "roll": table["base_roll"]}), str(tmp_path / "q.csv"))
+    _, report = import_log(tmp_path / "q.csv", tmp_path / "q", cfg)
+    assert {k: v for k, v in report.suggested_map.items() if "quat" in k or k.startswith("base_r")} == {
+        f"base_quat_{a}": f"orientation.{a}" for a in "wxyz"}
+    pacsv.write_csv(pa.table({**table, **quat}), str(tmp_path / "e.csv"))
+    _, report = import_log(tmp_path / "e.csv", tmp_path / "e", cfg)
+    assert report.suggested_map == {} and sorted(report.unused) == sorted(quat)
+
+
 def test_a_hybrid_command_is_stored_whole(tmp_path, acn):
     """An MIT-style command (q_des, dq_des, tau_ff, PD gains per joint type) is stored whole: the
     actions are 60 wide (q_des, kp, kd, dq_des, tau_ff), and the target the checks read is the
