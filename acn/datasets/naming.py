@@ -5,9 +5,10 @@ leg (``FR``, ``front_right``, ``RF``, ...), the joint (``hip`` / ``abad`` / ``HA
 ``HFE``, ``calf`` / ``knee`` / ``KFE``) and the quantity (angle, velocity, command, torque, gains);
 for the trunk, one axis and one quantity (``gyro_x``, ``angular_velocity.z``, ``acc_y``,
 ``orientation.w``, ``roll``, ``base_vel_x``); for a foot, its leg and ``contact``. Only a column
-that names one of each, and the only such column for that channel, is proposed (a column named by its joint alone, ``FR_hip_joint``, is taken for the
-angle); units are not guessed (a map entry's ``scale`` converts them). Numbered
-joints (``q[0]`` ... ``q[11]``) carry no words: their order is the user's to state.
+that names one of each, and the only such column for that channel, is proposed (a column named
+by its joint alone, ``FR_hip_joint``, is taken for the angle); units and frames are not guessed
+(a map entry's ``scale`` converts units). Numbered joints (``q[0]`` ... ``q[11]``) carry no words:
+their order is the user's to state.
 """
 
 from __future__ import annotations
