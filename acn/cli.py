@@ -581,6 +581,7 @@ def import_main(argv: list[str] | None = None) -> int:
     args = import_parser().parse_args(argv)
 
     def body() -> int:
+        from acn.datasets import naming
         from acn.datasets.importer import ImportConfig, import_log
         from acn.toolkit.backends.base import PHYSICS_HZ, physics_hz_for
 
@@ -608,8 +609,8 @@ def import_main(argv: list[str] | None = None) -> int:
             print(f"efforts of {len(r.partial_effort)} of 12 joints ({', '.join(r.partial_effort)}): not stored; "
                   "applied torques are all 12 joints' or none")
         if r.suggested_map:
-            print(f"columns named like channels the log lacks, as a --map file (check units and leg order; import "
-                  f"again with it): {json.dumps(r.suggested_map)}")
+            print(f"columns named like channels the log lacks, as a --map file (check units and leg order"
+                  f"{naming.arrays_read(r.suggested_map)}; import again with it): {json.dumps(r.suggested_map)}")
         if r.unused:
             print(f"columns no channel reads ({len(r.unused)}): {', '.join(r.unused[:12])}"
                   f"{', ...' if len(r.unused) > 12 else ''} (--map names a column for a channel)")

@@ -347,15 +347,18 @@ def test_a_log_other_code_got_wrong_gets_one_line_naming_the_cause(tmp_path, log
 
 
 def test_array_columns_duplicate_names_and_partial_efforts(tmp_path, log_rows, acn):
-    """A Parquet column of 12 joint angles per row is read one element each (q[0] ...) and mapped;
-    two columns of one name are refused; efforts of some joints only are named and not stored."""
+    """A Parquet column of 12 joint angles per row is read one element each (q[0] ...) and mapped
+    (the error's draft map reads it in the schema's order); two columns of one name are refused; efforts of some joints only are named and not stored."""
     joints = [f"{j}_pos" for j in JOINT_NAMES]
     q = np.column_stack([log_rows[n] for n in joints])
     table = {k: v for k, v in log_rows.items() if k not in joints}
     pq.write_table(pa.table({**table, "q": pa.array(list(q), pa.list_(pa.float64()))}), str(tmp_path / "log.parquet"))
     r = acn("import", str(tmp_path / "log.parquet"), "--out", str(tmp_path / "no_map"), *CONTROL)
     assert r.returncode == 2 and '{"FR_hip_pos": "q[0]"}' in r.stderr, r.stderr
-    (tmp_path / "map.json").write_text(json.dumps({n: f"q[{i}]" for i, n in enumerate(joints)}))
+    # the draft map reads the array in the schema's order (Unitree's), and says so
+    draft = json.loads(r.stderr.strip().split("; arrays read in the schema's order", 1)[1].split("): ", 1)[1])
+    assert draft == {n: f"q[{i}]" for i, n in enumerate(joints)}
+    (tmp_path / "map.json").write_text(json.dumps(draft))
     r = acn("import", str(tmp_path / "log.parquet"), "--out", str(tmp_path / "ds"), *CONTROL, "--map",
             str(tmp_path / "map.json"))
     assert r.returncode == 0, r.stderr

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from acn.datasets.naming import channel_of, suggest_map, words
+from acn.datasets.naming import CHANNELS, arrays_read, channel_of, suggest_map, words
 
 
 @pytest.mark.parametrize("name, channel", [
@@ -68,3 +68,19 @@ def test_a_trunk_or_contact_column_named_in_other_words_is_matched(name, channel
 ])
 def test_an_ambiguous_trunk_column_is_not_matched(name):
     assert channel_of(name) is None
+
+
+def test_array_columns_are_read_in_the_schemas_order():
+    """Array columns (a Parquet log's 12 joint angles per row, read as ``q[0]`` ... ``q[11]``) are
+    drafted in the schema's order, which is Unitree's SDK's; a quaternion's order differs between
+    libraries and is not drafted."""
+    columns = ([f"q[{i}]" for i in range(12)] + [f"tau_est[{i}]" for i in range(12)] + [f"q_des[{i}]" for i in range(12)]
+               + [f"imu_gyro[{i}]" for i in range(3)] + [f"imu_rpy[{i}]" for i in range(3)]
+               + [f"imu_quat[{i}]" for i in range(4)] + [f"foot_contact[{i}]" for i in range(4)] + ["dq[0]", "dq[1]"])
+    draft = suggest_map(columns, list(CHANNELS))
+    assert draft["FR_hip_pos"] == "q[0]" and draft["FL_calf_pos"] == "q[5]" and draft["RL_calf_pos"] == "q[11]"
+    assert draft["effort.RR_thigh"] == "tau_est[7]" and draft["action.FL_hip"] == "q_des[3]"
+    assert draft["base_angvel_z"] == "imu_gyro[2]" and draft["base_pitch"] == "imu_rpy[1]"
+    assert draft["RL_contact"] == "foot_contact[3]"
+    assert not any(c.startswith(("imu_quat", "dq")) for c in draft.values())  # quaternion order; 2 of 12 joints
+    assert "arrays read in the schema's order" in arrays_read(draft) and arrays_read({"FR_hip_pos": "a"}) == ""

@@ -293,7 +293,8 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
         hint = (f" (its array columns are read one element each, {arrays[0]}[0], {arrays[0]}[1], ...: map them, "
                 f'e.g. {{"FR_hip_pos": "{arrays[0]}[0]"}})') if arrays else ""
         if set(suggested) & set(joint_pos + actions):
-            hint += f"; columns named like them, as a --map file (check units and leg order): {json.dumps(suggested)}"
+            hint += (f"; columns named like them, as a --map file (check units and leg order{naming.arrays_read(suggested)}"
+                     f"): {json.dumps(suggested)}")
         raise UserError(f"{log} lacks joint positions or actions, the minimum a measurement needs: "
                         f"missing {', '.join(joint_pos + actions)}{hint}")
     if n < 2:

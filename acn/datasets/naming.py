@@ -7,15 +7,16 @@ for the trunk, one axis and one quantity (``gyro_x``, ``angular_velocity.z``, ``
 ``orientation.w``, ``roll``, ``base_vel_x``); for a foot, its leg and ``contact``. Only a column
 that names one of each, and the only such column for that channel, is proposed (a column named
 by its joint alone, ``FR_hip_joint``, is taken for the angle); units and frames are not guessed
-(a map entry's ``scale`` converts units). Numbered joints (``q[0]`` ... ``q[11]``) carry no words:
-their order is the user's to state.
+(a map entry's ``scale`` converts units). The elements of an array column (``q[0]`` ... ``q[11]``,
+``gyro[0]`` ... ``gyro[2]``) are read in the schema's order (``ARRAY_ORDER``), which the user
+must confirm (legged_gym orders its legs FL, FR, RL, RR: ``--leg-order``).
 """
 
 from __future__ import annotations
 
 import re
 
-from acn.toolkit.state import JOINT_NAMES, STATE_NAMES
+from acn.toolkit.state import FOOT_NAMES, JOINT_NAMES, STATE_NAMES
 
 _LEGS = {  # the schema's leg -> word sets any one of which names it
     "FR": ({"fr"}, {"rf"}, {"front", "right"}),
@@ -114,13 +115,40 @@ def _trunk_channel(w: set[str]) -> str | None:
 
 def suggest_map(columns: list[str], wanted: list[str]) -> dict[str, str]:
     """Draft map entries {channel: column} for the ``wanted`` channels from the log's ``columns``:
-    each channel with exactly one column that describes it (``channel_of``)."""
+    each channel with exactly one column that describes it (``channel_of``, ``_elements``)."""
     found: dict[str, list[str]] = {}
-    for c in columns:
-        channel = channel_of(c)
+    for c, described in [(c, c) for c in columns] + _elements(columns):
+        channel = channel_of(described)
         if channel in wanted:
             found.setdefault(channel, []).append(c)
     return {ch: cs[0] for ch in wanted if len(cs := found.get(ch, [])) == 1}
+
+
+ARRAY_ORDER = "the schema's order: joints FR, FL, RR, RL x hip, thigh, calf (as Unitree's SDK), axes x, y, z"
+
+
+def arrays_read(suggested: dict[str, str]) -> str:
+    """"; arrays read in ..." where a draft map reads array elements (their order is assumed), else ""."""
+    return f"; arrays read in {ARRAY_ORDER}" if any(c.endswith("]") for c in suggested.values()) else ""
+
+
+def _elements(columns: list[str]) -> list[tuple[str, str]]:
+    """(column, the name it would have) for the elements of array columns (``q[0]`` ... ``q[11]``,
+    ``gyro[0]`` ... ``gyro[2]``, ``contact[0]`` ... ``contact[3]``), read in ``ARRAY_ORDER``: 12
+    elements are the joints, 4 the feet, 3 the axes (roll, pitch, yaw for ``rpy``). A quaternion's
+    order differs between libraries (w first or last): not read."""
+    arrays: dict[str, list[int]] = {}
+    for c in columns:
+        if (m := re.fullmatch(r"(.+)\[(\d+)\]", c)) is not None:
+            arrays.setdefault(m.group(1), []).append(int(m.group(2)))
+    parts = {12: JOINT_NAMES, 4: FOOT_NAMES, 3: ("x", "y", "z")}
+    out = []
+    for base, index in arrays.items():
+        names = parts.get(len(index))
+        if names is None or sorted(index) != list(range(len(index))) or len(index) == 4 and _TRUNK["quat"] & words(base):
+            continue
+        out += [(f"{base}[{i}]", f"{base}_{names[i]}") for i in index]
+    return out
 
 
 CHANNELS = STATE_NAMES + tuple(f"base_quat_{a}" for a in "wxyz") + tuple(
