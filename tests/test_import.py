@@ -106,6 +106,23 @@ def test_joint_columns_named_in_other_words_get_a_draft_map(tmp_path, acn):
                                np.column_stack([table[f"{j}_vel"][:10] for j in JOINT_NAMES]), atol=1e-5)
 
 
+def test_a_log_with_its_time_in_ms_under_another_name_gets_a_draft_map(tmp_path, acn):
+    """``time_ms`` and ``trial`` instead of ``timestamp`` and ``episode_index``: the one-line error
+    carries a map with the scale to seconds, which imports the log whole."""
+    table = simulate(LogSpec(seconds=1.0, episodes=2, seed=5))
+    table["time_ms"], table["trial"] = table.pop("timestamp") * 1000.0, table.pop("episode_index")
+    pacsv.write_csv(pa.table(table), str(tmp_path / "log.csv"))
+    r = acn("import", str(tmp_path / "log.csv"), "--out", str(tmp_path / "ds"), *CONTROL)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and "no timestamp column" in lines[0], r.stderr
+    draft = json.loads(lines[0].split("as a --map file: ", 1)[1][:-1])
+    assert draft == {"timestamp": {"column": "time_ms", "scale": 1e-3}, "episode_index": "trial"}
+    (tmp_path / "map.json").write_text(json.dumps(draft))
+    r = acn("import", str(tmp_path / "log.csv"), "--out", str(tmp_path / "ds"), "--map", str(tmp_path / "map.json"),
+            *CONTROL)
+    assert r.returncode == 0 and "2 episode(s)" in r.stdout and "split at 0" in r.stdout, r.stdout + r.stderr
+
+
 def test_the_draft_map_names_one_orientation(tmp_path):
     """A log with its orientation as ``orientation.w/x/y/z`` and no Euler angles gets the
     quaternion drafted (and no Euler angle, although ``roll`` is there too); a log with the

@@ -30,7 +30,6 @@ def test_a_column_named_in_other_words_is_matched_to_its_channel(name, channel):
     "FR_FL_hip_pos",    # two legs
     "FR_hip_knee_pos",  # two joints
     "FR_hip_tau_ff",    # a feedforward torque: a command or the action of a torque-mode log
-    "timestamp",
 ])
 def test_an_ambiguous_column_is_not_matched(name):
     assert channel_of(name) is None
@@ -84,3 +83,11 @@ def test_array_columns_are_read_in_the_schemas_order():
     assert draft["RL_contact"] == "foot_contact[3]"
     assert not any(c.startswith(("imu_quat", "dq")) for c in draft.values())  # quaternion order; 2 of 12 joints
     assert "arrays read in the schema's order" in arrays_read(draft) and arrays_read({"FR_hip_pos": "a"}) == ""
+
+
+def test_time_and_episode_columns_are_matched_and_a_named_unit_scaled():
+    assert [channel_of(n) for n in ("time", "header.stamp", "time_s", "episode_id", "trial")] == \
+        ["timestamp", "timestamp", "timestamp", "episode_index", "episode_index"]
+    assert channel_of("step_time_since_contact") is None
+    assert suggest_map(["time_ms", "run"], ["timestamp", "episode_index"]) == {
+        "timestamp": {"column": "time_ms", "scale": 1e-3}, "episode_index": "run"}

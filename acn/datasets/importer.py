@@ -105,7 +105,7 @@ class ImportReport:
     quaternion: bool = False  # the trunk's orientation came from base_quat_* (converted to Euler angles)
     partial_effort: list[str] = field(default_factory=list)  # effort.* columns of fewer than 12 joints: not stored
     unused: list[str] = field(default_factory=list)  # the log's columns no channel reads
-    suggested_map: dict[str, str] = field(default_factory=dict)  # unused columns named like channels it lacks (naming)
+    suggested_map: dict[str, str | dict] = field(default_factory=dict)  # unused columns named like channels it lacks
 
     def quaternion_hint(self) -> str | None:
         """A line where the orientation came from a quaternion and a check finds the trunk's
@@ -285,7 +285,9 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
     cols = _shift_actions(_reorder_legs(_orientation(cols), tuple(cfg.leg_order)), cfg.shift_actions)
     n = len(next(iter(cols.values()))) if cols else 0
     if "timestamp" not in cols:
-        raise UserError(f"{log} has no timestamp column (s); map one with --map")
+        like = f" (columns named like the channels it lacks, as a --map file: {json.dumps(suggested)})" \
+            if "timestamp" in suggested else ""
+        raise UserError(f"{log} has no timestamp column (s); map one with --map{like}")
     joint_pos = [c for c in GROUPS["joint_pos"] if c not in cols]
     actions = [c for c in ACTION_COLUMNS if c not in cols]
     if joint_pos or actions:

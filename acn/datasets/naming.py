@@ -57,7 +57,7 @@ def channel_of(name: str) -> str | None:
     legs = [g for g, options in _LEGS.items() if any(o <= w for o in options)]
     joints = [j for j, options in _JOINTS.items() if options & w]
     if not legs and not joints:
-        return _trunk_channel(w)
+        return _index_channel(w) or _trunk_channel(w)
     leg, joint = _one(legs), _one(joints)
     if leg is not None and not joints and "contact" in w and not _COMMAND & w:
         return f"{leg}_contact"
@@ -73,6 +73,22 @@ def channel_of(name: str) -> str | None:
         quantities = ["pos"]
     pattern = _CHANNEL.get((command, quantities[0] if quantities else None))
     return pattern.format(j=f"{leg}_{joint}") if pattern else None
+
+
+_TIME = {"time", "timestamp", "stamp", "t"}      # a row's time (its unit is checked on import)
+_EPISODE = {"episode", "episodes", "trial", "run"}  # which episode a row belongs to
+_TIME_UNITS = {"ms": 1e-3, "us": 1e-6, "ns": 1e-9}  # a timestamp's unit named in its column, to seconds
+_INDEX_OTHER = {"s", "sec", "secs", "seconds", "header", "ros", "index", "idx", "id", "number", "num", "wall",
+                *_TIME_UNITS}
+
+
+def _index_channel(w: set[str]) -> str | None:
+    """``timestamp`` or ``episode_index`` from a name made of only such words (``time_s``,
+    ``header.stamp``, ``episode_id``); ``step_time_ms`` and the like are left out."""
+    for channel, options in (("timestamp", _TIME), ("episode_index", _EPISODE)):
+        if options & w and w <= options | _INDEX_OTHER:
+            return channel
+    return None
 
 
 _TRUNK = {  # the trunk's quantities (measured, not commanded) -> word sets that name them
@@ -113,15 +129,19 @@ def _trunk_channel(w: set[str]) -> str | None:
             "pos": "base_pos_{a}"}[kinds[0]].format(a=axes[0])
 
 
-def suggest_map(columns: list[str], wanted: list[str]) -> dict[str, str]:
+def suggest_map(columns: list[str], wanted: list[str]) -> dict[str, str | dict]:
     """Draft map entries {channel: column} for the ``wanted`` channels from the log's ``columns``:
-    each channel with exactly one column that describes it (``channel_of``, ``_elements``)."""
+    each channel with exactly one column that describes it (``channel_of``, ``_elements``); a
+    timestamp in ms, us or ns by its name gets the ``scale`` to seconds."""
     found: dict[str, list[str]] = {}
     for c, described in [(c, c) for c in columns] + _elements(columns):
         channel = channel_of(described)
         if channel in wanted:
             found.setdefault(channel, []).append(c)
-    return {ch: cs[0] for ch in wanted if len(cs := found.get(ch, [])) == 1}
+    out: dict[str, str | dict] = {ch: cs[0] for ch in wanted if len(cs := found.get(ch, [])) == 1}
+    if "timestamp" in out and (unit := [_TIME_UNITS[u] for u in _TIME_UNITS if u in words(out["timestamp"])]):
+        out["timestamp"] = {"column": out["timestamp"], "scale": unit[0]}
+    return out
 
 
 ARRAY_ORDER = "the schema's order: joints FR, FL, RR, RL x hip, thigh, calf (as Unitree's SDK), axes x, y, z"
@@ -129,7 +149,8 @@ ARRAY_ORDER = "the schema's order: joints FR, FL, RR, RL x hip, thigh, calf (as 
 
 def arrays_read(suggested: dict[str, str]) -> str:
     """"; arrays read in ..." where a draft map reads array elements (their order is assumed), else ""."""
-    return f"; arrays read in {ARRAY_ORDER}" if any(c.endswith("]") for c in suggested.values()) else ""
+    columns = [c if isinstance(c, str) else c["column"] for c in suggested.values()]
+    return f"; arrays read in {ARRAY_ORDER}" if any(c.endswith("]") for c in columns) else ""
 
 
 def _elements(columns: list[str]) -> list[tuple[str, str]]:
@@ -151,5 +172,5 @@ def _elements(columns: list[str]) -> list[tuple[str, str]]:
     return out
 
 
-CHANNELS = STATE_NAMES + tuple(f"base_quat_{a}" for a in "wxyz") + tuple(
+CHANNELS = ("timestamp", "episode_index") + STATE_NAMES + tuple(f"base_quat_{a}" for a in "wxyz") + tuple(
     f"{k}.{j}" for k in ("action", "effort", "action_vel", "action_kp", "action_kd") for j in JOINT_NAMES)
