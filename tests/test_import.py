@@ -123,6 +123,29 @@ def test_a_log_with_its_time_in_ms_under_another_name_gets_a_draft_map(tmp_path,
     assert r.returncode == 0 and "2 episode(s)" in r.stdout and "split at 0" in r.stdout, r.stdout + r.stderr
 
 
+def test_foot_forces_get_a_draft_map_to_contact_flags(tmp_path, acn):
+    """A log of foot forces instead of contact flags: the draft map turns each into a flag above
+    the threshold its readings split at, which gives the robot's own flags back."""
+    table = simulate(LogSpec(seconds=2.0, episodes=1, seed=5))
+    rng = np.random.default_rng(1)
+    flags = {leg: table.pop(f"{leg}_contact") for leg in ("FR", "FL", "RR", "RL")}
+    for leg, on in flags.items():
+        table[f"{leg}_foot_force"] = np.where(on > 0.5, rng.uniform(30.0, 80.0, len(on)), 0.0) + rng.normal(0, 2, len(on))
+    pacsv.write_csv(pa.table(table), str(tmp_path / "log.csv"))
+    r = acn("import", str(tmp_path / "log.csv"), "--out", str(tmp_path / "a"), *CONTROL)
+    line = next(x for x in r.stdout.splitlines() if x.startswith("columns named like channels the log lacks"))
+    draft = json.loads(line.split("import again with it): ", 1)[1])
+    assert set(draft) == {f"{leg}_contact" for leg in flags} and draft["RL_contact"]["column"] == "RL_foot_force"
+    (tmp_path / "map.json").write_text(json.dumps(draft))
+    r = acn("import", str(tmp_path / "log.csv"), "--out", str(tmp_path / "b"), "--map", str(tmp_path / "map.json"),
+            *CONTROL)
+    assert r.returncode == 0, r.stderr
+    m = load_measurements(tmp_path / "b")
+    got = m.state[:, SLICES["contact"]]
+    want = np.column_stack(list(flags.values()))[: len(got)]
+    assert (got == want).mean() > 0.99
+
+
 def test_the_draft_map_names_one_orientation(tmp_path):
     """A log with its orientation as ``orientation.w/x/y/z`` and no Euler angles gets the
     quaternion drafted (and no Euler angle, although ``roll`` is there too); a log with the

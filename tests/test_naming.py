@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
-from acn.datasets.naming import CHANNELS, arrays_read, channel_of, suggest_map, words
+from acn.datasets.naming import CHANNELS, arrays_read, channel_of, contact_threshold, foot_force_of, suggest_map, words
 
 
 @pytest.mark.parametrize("name, channel", [
@@ -91,3 +92,17 @@ def test_time_and_episode_columns_are_matched_and_a_named_unit_scaled():
     assert channel_of("step_time_since_contact") is None
     assert suggest_map(["time_ms", "run"], ["timestamp", "episode_index"]) == {
         "timestamp": {"column": "time_ms", "scale": 1e-3}, "episode_index": "run"}
+
+
+def test_a_foot_force_gets_the_threshold_that_splits_swing_from_stance():
+    """Foot forces (N, or a sensor's raw counts) become contact flags above a threshold drawn
+    from the readings: between the swing and stance groups; none where they form one group."""
+    rng = np.random.default_rng(0)
+    stance = rng.random(400) < 0.6
+    force = np.where(stance, rng.uniform(30.0, 90.0, 400), 0.0) + rng.normal(0.0, 2.0, 400)
+    t = contact_threshold(force)
+    assert t is not None and 5.0 < t < 30.0 and ((force > t) == stance).mean() > 0.99
+    assert contact_threshold(rng.normal(50.0, 5.0, 400)) is None   # always on the ground
+    assert contact_threshold(np.full(10, 3.0)) is None
+    assert [foot_force_of(n) for n in ("FR_foot_force", "footForce_RL", "grf_LF", "FR_hip_force", "force_x")] == \
+        ["FR", "RL", "FL", None, None]

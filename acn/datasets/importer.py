@@ -275,6 +275,7 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
     read = {e if isinstance(e, str) else e["column"] for e in mapping.values()} | set(KNOWN_COLUMNS)
     unused = [c for c in table if c not in read]
     suggested = naming.suggest_map(unused, [c for c in naming.CHANNELS if c not in cols])
+    suggested.update(_contact_drafts(table, unused, [c for c in GROUPS["contact"] if c not in cols and c not in suggested]))
     euler, quat = GROUPS["base_rpy"], QUAT_COLUMNS  # one orientation: the one the log has, else a whole quaternion
     drop = quat if any(c in cols for c in euler) else euler if any(c in cols for c in quat) or \
         all(c in suggested for c in quat) else ()
@@ -442,6 +443,22 @@ def _hybrid_actions(action: np.ndarray, cols: dict[str, np.ndarray], cfg: Import
         if (kp < 0).any() or (kd < 0).any():
             raise UserError(f"{kinds}: a gain sent with a command is negative")
     return np.concatenate([action, kp, kd, velocity, torque], axis=1), list(extra)
+
+
+def _contact_drafts(table: dict[str, np.ndarray], unused: list[str], wanted: list[str]) -> dict[str, dict]:
+    """Draft map entries for contact flags from foot-force columns (``naming.foot_force_of``), each
+    with the threshold that splits its readings into swing and stance (``naming.contact_threshold``)."""
+    found: dict[str, list[str]] = {}
+    for c, described in [(c, c) for c in unused] + naming.elements(unused):
+        leg = naming.foot_force_of(described)
+        if leg is not None and f"{leg}_contact" in wanted:
+            found.setdefault(f"{leg}_contact", []).append(c)
+    out = {}
+    for channel, columns in found.items():
+        threshold = naming.contact_threshold(table[columns[0]]) if len(columns) == 1 else None
+        if threshold is not None:
+            out[channel] = {"column": columns[0], "threshold": round(threshold, 3)}
+    return out
 
 
 def _reorder_legs(cols: dict[str, np.ndarray], order: tuple[str, ...]) -> dict[str, np.ndarray]:

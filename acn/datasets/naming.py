@@ -4,7 +4,8 @@ A column is matched to one of the schema's channels by the words in its name: fo
 leg (``FR``, ``front_right``, ``RF``, ...), the joint (``hip`` / ``abad`` / ``HAA``, ``thigh`` /
 ``HFE``, ``calf`` / ``knee`` / ``KFE``) and the quantity (angle, velocity, command, torque, gains);
 for the trunk, one axis and one quantity (``gyro_x``, ``angular_velocity.z``, ``acc_y``,
-``orientation.w``, ``roll``, ``base_vel_x``); for a foot, its leg and ``contact``. Only a column
+``orientation.w``, ``roll``, ``base_vel_x``); for a foot, its leg and ``contact`` (or a force,
+with a threshold drawn from its readings: ``contact_threshold``). Only a column
 that names one of each, and the only such column for that channel, is proposed (a column named
 by its joint alone, ``FR_hip_joint``, is taken for the angle); units and frames are not guessed
 (a map entry's ``scale`` converts units). The elements of an array column (``q[0]`` ... ``q[11]``,
@@ -15,6 +16,8 @@ must confirm (legged_gym orders its legs FL, FR, RL, RR: ``--leg-order``).
 from __future__ import annotations
 
 import re
+
+import numpy as np
 
 from acn.toolkit.state import FOOT_NAMES, JOINT_NAMES, STATE_NAMES
 
@@ -129,12 +132,51 @@ def _trunk_channel(w: set[str]) -> str | None:
             "pos": "base_pos_{a}"}[kinds[0]].format(a=axes[0])
 
 
+_FORCE = {"force", "grf", "load"}  # a foot's force sensor: a contact flag above a threshold
+
+
+def foot_force_of(name: str) -> str | None:
+    """The leg whose foot force a column name describes (``FR_foot_force``, ``footForce[0]`` as
+    ``footForce_FR`` by ``elements``), or None."""
+    w = words(name)
+    legs = [g for g, options in _LEGS.items() if any(o <= w for o in options)]
+    if len(legs) != 1 or not _FORCE & w or _COMMAND & w or any(o & w for o in _JOINTS.values()):
+        return None
+    return legs[0]
+
+
+def contact_threshold(force: np.ndarray) -> float | None:
+    """The force that splits a foot's readings into swing and stance: the middle of the widest gap
+    between the means of the two groups that leave the least variance within them (Otsu), or None
+    where the readings do not fall into two groups (either under 5 % of the rows, or the groups'
+    means closer than 3 of their pooled standard deviations)."""
+    v = np.sort(force[np.isfinite(force)])
+    n = len(v)
+    if n < 20:
+        return None
+    k = np.arange(1, n)
+    csum = np.cumsum(v)
+    lo_mean, hi_mean = csum[:-1] / k, (csum[-1] - csum[:-1]) / (n - k)
+    between = k * (n - k) * (hi_mean - lo_mean) ** 2  # Otsu: maximise the between-group variance
+    ok = (k >= 0.05 * n) & (k <= 0.95 * n)
+    if not ok.any():
+        return None
+    i = int(np.argmax(np.where(ok, between, -1.0)))
+    low, high = v[: i + 1], v[i + 1:]
+    spread = np.sqrt((low.var() * len(low) + high.var() * len(high)) / n)
+    if high.mean() - low.mean() < 3.0 * spread:
+        return None
+    between_means = v[(v >= low.mean()) & (v <= high.mean())]  # Otsu's split leans into the wider group:
+    j = int(np.argmax(np.diff(between_means)))                  # the widest gap between the means instead
+    return float(0.5 * (between_means[j] + between_means[j + 1]))
+
+
 def suggest_map(columns: list[str], wanted: list[str]) -> dict[str, str | dict]:
     """Draft map entries {channel: column} for the ``wanted`` channels from the log's ``columns``:
-    each channel with exactly one column that describes it (``channel_of``, ``_elements``); a
+    each channel with exactly one column that describes it (``channel_of``, ``elements``); a
     timestamp in ms, us or ns by its name gets the ``scale`` to seconds."""
     found: dict[str, list[str]] = {}
-    for c, described in [(c, c) for c in columns] + _elements(columns):
+    for c, described in [(c, c) for c in columns] + elements(columns):
         channel = channel_of(described)
         if channel in wanted:
             found.setdefault(channel, []).append(c)
@@ -153,7 +195,7 @@ def arrays_read(suggested: dict[str, str]) -> str:
     return f"; arrays read in {ARRAY_ORDER}" if any(c.endswith("]") for c in columns) else ""
 
 
-def _elements(columns: list[str]) -> list[tuple[str, str]]:
+def elements(columns: list[str]) -> list[tuple[str, str]]:
     """(column, the name it would have) for the elements of array columns (``q[0]`` ... ``q[11]``,
     ``gyro[0]`` ... ``gyro[2]``, ``contact[0]`` ... ``contact[3]``), read in ``ARRAY_ORDER``: 12
     elements are the joints, 4 the feet, 3 the axes (roll, pitch, yaw for ``rpy``). A quaternion's
