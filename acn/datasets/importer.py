@@ -274,12 +274,7 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
     cols = resolve_columns(table, mapping)
     read = {e if isinstance(e, str) else e["column"] for e in mapping.values()} | set(KNOWN_COLUMNS)
     unused = [c for c in table if c not in read]
-    suggested = naming.suggest_map(unused, [c for c in naming.CHANNELS if c not in cols])
-    suggested.update(_contact_drafts(table, unused, [c for c in GROUPS["contact"] if c not in cols and c not in suggested]))
-    euler, quat = GROUPS["base_rpy"], QUAT_COLUMNS  # one orientation: the one the log has, else a whole quaternion
-    drop = quat if any(c in cols for c in euler) else euler if any(c in cols for c in quat) or \
-        all(c in suggested for c in quat) else ()
-    suggested = {k: v for k, v in suggested.items() if k not in drop}
+    suggested = _draft_map(table, unused, cols)
     quaternion = any(c in cols for c in QUAT_COLUMNS)
     # a channel the logger wrote as an empty (all-NaN) column is a channel it did not log
     cols = {k: v for k, v in cols.items() if k in INDEX_COLUMNS or np.isfinite(v).any()}
@@ -445,20 +440,21 @@ def _hybrid_actions(action: np.ndarray, cols: dict[str, np.ndarray], cfg: Import
     return np.concatenate([action, kp, kd, velocity, torque], axis=1), list(extra)
 
 
-def _contact_drafts(table: dict[str, np.ndarray], unused: list[str], wanted: list[str]) -> dict[str, dict]:
-    """Draft map entries for contact flags from foot-force columns (``naming.foot_force_of``), each
-    with the threshold that splits its readings into swing and stance (``naming.contact_threshold``)."""
-    found: dict[str, list[str]] = {}
-    for c, described in [(c, c) for c in unused] + naming.elements(unused):
-        leg = naming.foot_force_of(described)
-        if leg is not None and f"{leg}_contact" in wanted:
-            found.setdefault(f"{leg}_contact", []).append(c)
-    out = {}
-    for channel, columns in found.items():
-        threshold = naming.contact_threshold(table[columns[0]]) if len(columns) == 1 else None
-        if threshold is not None:
-            out[channel] = {"column": columns[0], "threshold": round(threshold, 3)}
-    return out
+def _draft_map(table: dict[str, np.ndarray], unused: list[str], cols: dict[str, np.ndarray]) -> dict[str, str | dict]:
+    """A draft ``--map`` for the channels ``cols`` lacks from the ``unused`` columns of the log
+    (``acn.datasets.naming``): by their names; contact flags from foot forces, each with the
+    threshold that splits its readings into swing and stance (``naming.contact_threshold``); one
+    orientation, the one the log has, else a whole quaternion."""
+    draft = naming.suggest_map(unused, [c for c in naming.CHANNELS if c not in cols])
+    forces = naming.suggest_map(unused, [c for c in GROUPS["contact"] if c not in cols and c not in draft],
+                                describe=naming.contact_of_force)
+    for channel, column in forces.items():
+        if (threshold := naming.contact_threshold(table[column])) is not None:
+            draft[channel] = {"column": column, "threshold": round(threshold, 3)}
+    euler, quat = GROUPS["base_rpy"], QUAT_COLUMNS
+    drop = quat if any(c in cols for c in euler) else euler if any(c in cols for c in quat) or \
+        all(c in draft for c in quat) else ()
+    return {k: v for k, v in draft.items() if k not in drop}
 
 
 def _reorder_legs(cols: dict[str, np.ndarray], order: tuple[str, ...]) -> dict[str, np.ndarray]:

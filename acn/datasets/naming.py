@@ -16,6 +16,7 @@ must confirm (legged_gym orders its legs FL, FR, RL, RR: ``--leg-order``).
 from __future__ import annotations
 
 import re
+from typing import Callable
 
 import numpy as np
 
@@ -171,13 +172,20 @@ def contact_threshold(force: np.ndarray) -> float | None:
     return float(0.5 * (between_means[j] + between_means[j + 1]))
 
 
-def suggest_map(columns: list[str], wanted: list[str]) -> dict[str, str | dict]:
+def contact_of_force(name: str) -> str | None:
+    """The contact flag a foot-force column can give (``foot_force_of``), or None."""
+    leg = foot_force_of(name)
+    return f"{leg}_contact" if leg is not None else None
+
+
+def suggest_map(columns: list[str], wanted: list[str],
+                describe: Callable[[str], str | None] = channel_of) -> dict[str, str | dict]:
     """Draft map entries {channel: column} for the ``wanted`` channels from the log's ``columns``:
-    each channel with exactly one column that describes it (``channel_of``, ``elements``); a
-    timestamp in ms, us or ns by its name gets the ``scale`` to seconds."""
+    each channel with exactly one column that ``describe`` reads as it (``channel_of``; array
+    elements by ``elements``); a timestamp in ms, us or ns by its name gets the ``scale`` to seconds."""
     found: dict[str, list[str]] = {}
     for c, described in [(c, c) for c in columns] + elements(columns):
-        channel = channel_of(described)
+        channel = describe(described)
         if channel in wanted:
             found.setdefault(channel, []).append(c)
     out: dict[str, str | dict] = {ch: cs[0] for ch in wanted if len(cs := found.get(ch, [])) == 1}
