@@ -153,7 +153,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--samples", type=int, default=100_000)
     ap.add_argument("--epochs", type=int, default=2)
-    ap.add_argument("--label-rows", type=int, default=500)
+    ap.add_argument("--label-rows", type=int, default=500, help="0: no labelling (a machine without MuJoCo)")
     ap.add_argument("--device", default="cpu", help="cpu, or cuda: the GPU loops instead (no labelling)")
     ap.add_argument("--busy", type=int, default=0, help="run the training loops beside this many spinning processes")
     args = ap.parse_args()
@@ -197,7 +197,8 @@ def main() -> None:
     print(f"million_frames_10_epochs_s={1e7 / fit:.0f}")
     print(f"torch_threads={torch.get_num_threads()}")
     print(f"fit_bf16={int(cfg.use_bf16())}")
-    labelling(args.label_rows)
+    if args.label_rows > 0:
+        labelling(args.label_rows)
     if torch.cuda.is_available():  # `make bench` on a machine with a GPU measures it too
         gpu(x, r, args.epochs, "cuda")
 
