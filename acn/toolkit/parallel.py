@@ -194,7 +194,11 @@ def episodes_on_ray(config: "CollectConfig", indices: Iterable[int], in_flight: 
 
     At most ``in_flight`` tasks (default ``IN_FLIGHT_PER_CPU`` x the cluster's CPUs) are
     submitted beyond the last episode yielded; finished ones wait in Ray's object store. Closing
-    the generator (or an interrupt while it waits) cancels what is still running.
+    the generator (or an interrupt while it waits) cancels what is still running: a task that
+    has started gets a KeyboardInterrupt rather than a killed worker. (With ``force=True``, Ray's
+    driver once aborted on a loaded machine with "Tried to complete task that was not pending",
+    exit 1 instead of the interrupt's 130: a killed worker's failure racing its reply, we
+    suspect; not reproduced in 6 runs under load.)
     """
     ray = import_ray()
     if not ray.is_initialized():
@@ -222,7 +226,7 @@ def episodes_on_ray(config: "CollectConfig", indices: Iterable[int], in_flight: 
             yield episode
     finally:
         for ref in running:
-            ray.cancel(ref, force=True)
+            ray.cancel(ref)
 
 
 # ----- batch re-simulation ---------------------------------------------------------------------
