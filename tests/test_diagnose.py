@@ -81,7 +81,8 @@ def test_each_hidden_effect_is_ranked_first_fitted_and_removed(tmp_path, name):
     for key, true in params.items():
         if key.startswith("com_"):
             continue
-        assert close(fitted[key], true), (key, fitted[key], true)
+        # twelve offsets: within 10 % (17 % here before add.refine_chain's central differences; 3.8 % with them)
+        assert close(fitted[key], true, 0.1 if name == "encoder_offset" else 0.2), (key, fitted[key], true)
     if name == "payload":
         com = np.array([fitted[k] for k in ("com_x", "com_y", "com_z")])
         true = np.array([params[k] for k in ("com_x", "com_y", "com_z")])
@@ -510,6 +511,28 @@ def test_a_noisy_log_of_a_motion_capture_body_names_its_frame(tmp_path):
     np.testing.assert_allclose(got[:3], marker[:3], atol=0.01)   # m
     np.testing.assert_allclose(got[3:], marker[3:], atol=0.005)  # rad
     assert d.verdict == "effect" and d.final.headline < 0.7 * d.before.headline, d.reason
+
+
+def test_the_jacobian_is_taken_by_central_differences_inside_the_bounds():
+    """``central_jacobian``: (r(x + h) - r(x - h)) / 2h, one-sided where a bound cuts the step;
+    every point it asks for lies within the bounds, all of them in one batch."""
+    from acn.models.diagnose.fitting import FD_STEP, central_jacobian
+
+    asked = []
+
+    def residual(z):  # (n, k) points -> (m, k) residuals; smooth, with curvature
+        asked.append(z.copy())
+        return np.stack([np.sin(z[0]) + z[1] ** 2, z[0] * z[1], np.exp(z[1])])
+
+    lo, hi = np.array([-1.0, -1.0]), np.array([1.0, 0.5])
+    x = np.array([0.3, 0.5])  # the second parameter at its upper bound
+    jac = central_jacobian(residual, lo, hi)(x.reshape(-1, 1), residual(x.reshape(-1, 1)))
+    assert len(asked) == 2 and asked[1].shape == (2, 4)  # the residual at x, then 2 n points at once
+    assert np.all(asked[1] >= lo[:, None]) and np.all(asked[1] <= hi[:, None])
+    h = FD_STEP
+    np.testing.assert_allclose(jac[:, 0], [np.cos(0.3) * np.sin(h) / h, 0.5, 0.0], rtol=1e-12, atol=1e-12)
+    # at the upper bound: the backward difference over h
+    np.testing.assert_allclose(jac[:, 1], [(0.25 - 0.4 ** 2) / h, 0.3, (np.exp(0.5) - np.exp(0.4)) / h], rtol=1e-12)
 
 
 @NOISY_LOGS

@@ -87,6 +87,36 @@ def choose_fit(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, j
     return fit, judge(problem, fit.model, judge_rows, base_residual)
 
 
+def refine_chain(problem: Problem, before: Comparison, steps: list[Added], cfg: DiagnoseConfig,
+                 judge_rows: np.ndarray, base_residual: np.ndarray) -> list[Added]:
+    """``steps`` (the effects the diagnosis added, in order) with the fit of each effect that
+    moves the start state (``Effect.moves_start``) refined by central differences, and every
+    later step refitted on top of it; each at the granularity chosen, from its values (the
+    refine stage of ``choose_fit``). The effects are chosen with forward differences, whose
+    thresholds were measured on them; this only makes the chosen values more exact (fitting
+    module docstring: the offsets log's 12 offsets 38 % -> 8.5 % off). ``steps`` itself where no
+    effect moves the start state."""
+    first = next((i for i, s in enumerate(steps) if s.fit.effect.moves_start), None)
+    if first is None:
+        return steps
+    out = steps[:first]
+    current = out[-1].after if out else before
+    residual = out[-1].judgement.residual_after if out else base_residual
+    for step in steps[first:]:
+        model, effect = current.model, step.fit.effect
+        rows = rank_rows(problem, cfg)
+        more = problem.sample(problem.fit_rows, cfg.fit_rows, salt=5)
+        rows = more if len(more) > len(rows) else rows
+        central = effect.moves_start
+        fit = fit_effect(problem, model, effect, step.fit.granularity, rows, start=step.fit.values, max_iter=6,
+                         refit=refittable(model), central=central)
+        fit = instrumental_refit(problem, model, fit, rows, refit=refittable(model), central=central)
+        judgement = judge(problem, fit.model, judge_rows, residual)
+        out.append(Added(fit, judgement, current, compare(problem, fit.model, cfg)))
+        current, residual = out[-1].after, judgement.residual_after
+    return out
+
+
 def add_effect(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, judge_rows: np.ndarray,
                base_residual: np.ndarray, before: Comparison, start: EffectFit | None = None) -> Added:
     fit, judgement = choose_fit(problem, model, name, cfg, judge_rows, base_residual, start)

@@ -7,6 +7,21 @@ one per joint type (``type``: hip, thigh, calf), one per leg (``leg``) or one pe
 (``joint``). The optimiser works on parameters divided by their typical magnitude, so one
 finite-difference step (10 % of it) suits every unit. Every point the optimiser asks for in one
 iteration is re-simulated in one batch (one model per point).
+
+Jacobians are forward differences, except in ``central=True`` fits (``central_jacobian``),
+which the diagnosis uses to refine the final fit of an effect whose parameters move the
+measured start state (``Effect.moves_start``: encoder offsets move the feet against the
+ground; ``add.refine_chain``). There the one-step residual is rough at small scales: at a step
+of 0.015 rad, forward and backward slopes differed by more than their mean in 59 % of the rows
+of a noise-free offsets log, and a forward difference overstated the slope (Jacobian norm 34.8
+forward, 27.0 central), so Gauss-Newton steps fell short and the interval half-widths too.
+Measured on that log (12 offsets, one fit from nominal, 12 iterations): forward differences
+left 32.6 % of the offsets' norm (172 evaluations; 11.9 % after 36 iterations), central ones
+10.8 % within the same evaluations and 3.6 % within the budget given for them (2 n + 3
+evaluations per iteration, 328 here). Not everywhere: with central differences in every fit,
+the 12 offsets also fitted a few per cent of a torque-limit log's error (4-17 mrad, no offsets
+hidden), and ``--auto`` added them (``benchmarks/diagnose_cases.py``, stop 40), which is why
+the effects are chosen with forward differences and only the chosen ones are refined.
 """
 
 from __future__ import annotations
@@ -31,6 +46,31 @@ _GROUP_OF_JOINT = {
 GROUP_LABELS = {"shared": ("all",), "type": ("hip", "thigh", "calf"), "leg": FOOT_NAMES, "joint": JOINT_NAMES}
 DIVERGED_RESIDUAL = 10.0  # normalised residual given to a prediction that blew up
 FD_STEP = 0.1             # finite-difference step, as a fraction of a parameter's typical magnitude
+
+
+def central_jacobian(residual, lower: np.ndarray, upper: np.ndarray, step: float = FD_STEP):
+    """``jac(x, r)`` for ``mujoco.minimize.least_squares``: central differences of the batched
+    ``residual`` (2 n points in one call), one-sided where a bound cuts the step."""
+    lower, upper = lower.reshape(-1, 1), upper.reshape(-1, 1)
+
+    def jac(x: np.ndarray, r: np.ndarray) -> np.ndarray:
+        x = x.reshape(-1, 1)
+        eye = step * np.eye(len(x))
+        plus, minus = np.minimum(x + eye, upper), np.maximum(x - eye, lower)
+        both = residual(np.concatenate([plus, minus], axis=1))
+        n = len(x)
+        return (both[:, :n] - both[:, n:]) / (plus - minus).diagonal()
+
+    return jac
+
+
+def _jacobian(residual, z: np.ndarray, r: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+              central: bool) -> np.ndarray:
+    """The residual's Jacobian at ``z`` (scaled units): central or forward differences."""
+    if central:
+        return central_jacobian(residual, lower, upper)(z, r)
+    return minimize.jacobian_fd(residual, z.reshape(-1, 1), r.reshape(-1, 1), np.float64(FD_STEP), 0,
+                                [lower.reshape(-1, 1), upper.reshape(-1, 1)])[0]
 
 
 class SoftL1(minimize.Norm):
@@ -246,11 +286,14 @@ def _together(problem: Problem, base: Model, effect: Effect, granularity: str, r
 
 
 def fit_effect(problem: Problem, base: Model, effect: Effect, granularity: str, rows: np.ndarray,
-               start: Values | None = None, max_iter: int = 12, refit: tuple[str, ...] = ()) -> EffectFit:
+               start: Values | None = None, max_iter: int = 12, refit: tuple[str, ...] = (),
+               central: bool = False) -> EffectFit:
     """Robust least-squares fit of ``effect`` added to ``base`` on ``rows`` (module docstring).
 
     A coarse scan picks the start; ``mujoco.minimize.least_squares`` (pseudo-Huber norm) refines
-    it within ``max_iter`` iterations and an evaluation budget; the best point seen is kept.
+    it within ``max_iter`` iterations and an evaluation budget (n + 3 per iteration: the Jacobian's
+    n points and the trial steps; 2 n + 3 with ``central`` differences, module docstring); the
+    best point seen is kept.
     ``refit``: names of effects in ``base`` whose parameters are fitted again together with it.
     """
     free = _together(problem, base, effect, granularity, refit)
@@ -258,7 +301,7 @@ def fit_effect(problem: Problem, base: Model, effect: Effect, granularity: str, 
         start = _clipped(effect, effect.guess(problem.data.state[problem.fit_rows]))
     lo, hi = free.bounds()
     n_free = len(free.names)
-    objective = Objective(problem, base, free, rows, budget=8 + max_iter * (n_free + 3))
+    objective = Objective(problem, base, free, rows, budget=8 + max_iter * ((2 if central else 1) * n_free + 3))
     scale = objective.scale
     z0 = np.clip(free.start(start) / scale, lo / scale, hi / scale)
     z, r, sensitive = _scan_start(objective, z0, free, lo / scale, hi / scale)
@@ -270,6 +313,7 @@ def fit_effect(problem: Problem, base: Model, effect: Effect, granularity: str, 
         objective.best_cost, objective.best_z, objective.best_r = float(objective.norm.value(r)), z, r
         try:
             minimize.least_squares(z, objective, bounds=[lo / scale, hi / scale], norm=objective.norm, eps=FD_STEP,
+                                   jacobian=central_jacobian(objective, lo / scale, hi / scale) if central else None,
                                    max_iter=-(-max_iter // stages), verbose=0, xtol=1e-3, gtol=1e-10,
                                    mu_factor=10.0 ** 0.5)
         except _OutOfBudget:
@@ -277,8 +321,7 @@ def fit_effect(problem: Problem, base: Model, effect: Effect, granularity: str, 
         finally:
             z, r = objective.best_z, objective.best_r
     objective.budget = np.inf  # the Jacobian for the intervals is always computed
-    jac, _ = minimize.jacobian_fd(objective, z.reshape(-1, 1), r.reshape(-1, 1), np.float64(FD_STEP), 0,
-                                  [lo.reshape(-1, 1) / scale[:, None], hi.reshape(-1, 1) / scale[:, None]])
+    jac = _jacobian(objective, z, r, lo / scale, hi / scale, central)
     stderr = _stderr(r, jac) * scale
     x = z * scale
     values = free.split(x)[0]
@@ -344,7 +387,7 @@ IV_MAX_COST = 1.05  # the instrumental fit may cost at most this much more than 
 
 
 def instrumental_refit(problem: Problem, base: Model, fit: EffectFit, rows: np.ndarray,
-                       refit: tuple[str, ...] = (), iterations: int = 3) -> EffectFit:
+                       refit: tuple[str, ...] = (), iterations: int = 3, central: bool = False) -> EffectFit:
     """Correct a least-squares fit of a joint effect for noise in the measured start states.
 
     The model starts from the MEASURED s_t; its noise enters the prediction damped by the very
@@ -375,12 +418,11 @@ def instrumental_refit(problem: Problem, base: Model, fit: EffectFit, rows: np.n
     lo, hi = free.bounds()
     objective = Objective(problem, base, free, np.concatenate([rows, lag]), budget=np.inf)
     scale = objective.scale
-    bounds = [lo.reshape(-1, 1) / scale[:, None], hi.reshape(-1, 1) / scale[:, None]]
     z = fit.x / scale
     half = len(rows) * len(problem.channels)
     r = objective(z.reshape(-1, 1))[:, 0]
     r0 = r[:half].copy()
-    jac, _ = minimize.jacobian_fd(objective, z.reshape(-1, 1), r.reshape(-1, 1), np.float64(FD_STEP), 0, bounds)
+    jac = _jacobian(objective, z, r, lo / scale, hi / scale, central)
     j_now, instrument = jac[:half], 0.5 * (jac[half:2 * half] + jac[2 * half:])  # J at t +- IV_LAG, averaged
     delta = 3.0 * 1.4826 * float(np.median(np.abs(r[:half]))) or 1e-9
     w = 1.0 / np.sqrt(1.0 + (r[:half] / delta) ** 2)  # the least-squares fit's robust weights, kept fixed

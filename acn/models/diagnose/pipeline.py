@@ -35,7 +35,7 @@ import numpy as np
 
 from acn.datasets import checks
 from acn.datasets.measurements import Measurements
-from acn.models.diagnose.add import Added, Chain, add_effect, auto, longest_removed
+from acn.models.diagnose.add import Added, Chain, add_effect, auto, longest_removed, refine_chain
 from acn.models.diagnose.compare import Comparison, compare, floor_of, informative_horizon
 from acn.models.diagnose.pairing import action_row
 from acn.models.diagnose.problem import DiagnoseConfig, Problem, corrected, prepare
@@ -252,6 +252,13 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
         again = ranking if not added else rank(problem, current.model, cfg, judge_rows, current_residual, say)
         steps, chains, set_aside = auto(problem, current, cfg, judge_rows, current_residual, floor_mse, again, say)
         added += steps
+    if any(a.fit.effect.moves_start for a in added):
+        say("refining the fits of effects that move the start state", None)
+        refined = refine_chain(problem, before, added, cfg, judge_rows, residual)
+        swap = {id(a): b for a, b in zip(added, refined)}
+        for chain in chains:
+            chain.steps = [swap.get(id(s), s) for s in chain.steps]
+        added = refined
     t3 = time.perf_counter()
     v, reason, named = verdict(before, mse, floor_mse, ranking, added, automatic, set_aside)
     reason += findings_note(findings, named)

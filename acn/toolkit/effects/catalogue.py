@@ -134,7 +134,7 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
     Effect("encoder_offset", "joint encoders read q + value; the PD acts on the reading",
            (Parameter("value", "rad", 0.0, -0.5, 0.5, per_joint=True, realistic=(0.02, 0.15), signed=True),),
            _setter("encoder_offset"), mujoco="actuator bias (-kp offset) and the state's reading",
-           pybullet="the control law's reading and the state's reading"),
+           pybullet="the control law's reading and the state's reading", moves_start=True),
     Effect("backlash", "a dead band in the joint position loop (gear play)",
            (Parameter("value", "rad", 0.0, 0.0, 0.3, per_joint=True, realistic=(0.01, 0.05)),),
            _setter("backlash"), mujoco="motor actuators, the dead-band law computed each physics step",

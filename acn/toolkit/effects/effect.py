@@ -56,6 +56,8 @@ class Effect:
     guess: Callable[[np.ndarray], "Values | None"] | None = None  # a cheap first estimate from measured
     # states (N, 43) where one exists (e.g. by kinematics); a fit starts from it
     reading_only: bool = False  # changes how the state is read, not the physics (acn.models.diagnose.rank)
+    moves_start: bool = False   # moves the measured start state against the ground (encoder offsets move the
+    # feet): its chosen fit is refined with central differences (acn.models.diagnose.add.refine_chain)
     check: Callable[[np.ndarray, Values], str] | None = None  # measured states (N, 43) and fitted values ->
     # why the data contradict them without any simulation ("" where they agree; e.g. by kinematics)
 
