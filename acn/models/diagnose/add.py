@@ -13,7 +13,8 @@ error at the longest horizon is not added (``rank.one_step_only``), nor one whos
 (``rank.implausible``): it is set aside with the reason, and the next candidate is tried.
 Then ``revisit`` judges each added effect again beside the others, and ``other_starts`` runs
 the same greedy chain from the next-best first candidates, keeping one that predicts clearly
-better.
+better. Once the effects are chosen, ``refine_chain`` refines the fit of those that move the
+start state (encoder offsets) with central differences (``fitting`` module docstring).
 """
 
 from __future__ import annotations
