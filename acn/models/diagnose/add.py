@@ -62,6 +62,14 @@ def _granularities(effect, finest: str) -> list[str]:
     return list(GRANULARITIES[: GRANULARITIES.index(finest) + 1])
 
 
+def _final_rows(problem: Problem, cfg: DiagnoseConfig) -> np.ndarray:
+    """The rows an added effect's final fit is made on: ``cfg.fit_rows`` of them, or the ranking's
+    rows where those are more."""
+    more = problem.sample(problem.fit_rows, cfg.fit_rows, salt=5)
+    rows = rank_rows(problem, cfg)
+    return more if len(more) > len(rows) else rows
+
+
 def choose_fit(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, judge_rows: np.ndarray,
                base_residual: np.ndarray, start: EffectFit | None = None) -> tuple[EffectFit, Judgement]:
     """The effect fitted at the coarsest granularity (down to ``cfg.finest``) no finer one
@@ -80,11 +88,11 @@ def choose_fit(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, j
         if judge(problem, fit.model, judge_rows, best[1].residual_after, reference_mse=best[1].mse_before).significant:
             best = (fit, judge(problem, fit.model, judge_rows, base_residual))
     fit = best[0]
-    more = problem.sample(problem.fit_rows, cfg.fit_rows, salt=5)
+    more = _final_rows(problem, cfg)
     if len(more) > len(rows):  # refine on more rows, starting from the chosen values
         fit = fit_effect(problem, model, effect, fit.granularity, more, start=fit.values, max_iter=6,
                          refit=refittable(model))
-    fit = instrumental_refit(problem, model, fit, more if len(more) > len(rows) else rows, refit=refittable(model))
+    fit = instrumental_refit(problem, model, fit, more, refit=refittable(model))
     return fit, judge(problem, fit.model, judge_rows, base_residual)
 
 
@@ -95,8 +103,8 @@ def refine_chain(problem: Problem, before: Comparison, steps: list[Added], cfg: 
     later step refitted on top of it; each at the granularity chosen, from its values (the
     refine stage of ``choose_fit``). The effects are chosen with forward differences, whose
     thresholds were measured on them; this only makes the chosen values more exact (fitting
-    module docstring: the offsets log's 12 offsets 38 % -> 8.5 % off). ``steps`` itself where no
-    effect moves the start state."""
+    module docstring; the benchmark's offsets log: 12 offsets 38 % -> 13.5 % off). ``steps``
+    itself where no effect moves the start state."""
     first = next((i for i, s in enumerate(steps) if s.fit.effect.moves_start), None)
     if first is None:
         return steps
@@ -105,9 +113,7 @@ def refine_chain(problem: Problem, before: Comparison, steps: list[Added], cfg: 
     residual = out[-1].judgement.residual_after if out else base_residual
     for step in steps[first:]:
         model, effect = current.model, step.fit.effect
-        rows = rank_rows(problem, cfg)
-        more = problem.sample(problem.fit_rows, cfg.fit_rows, salt=5)
-        rows = more if len(more) > len(rows) else rows
+        rows = _final_rows(problem, cfg)
         central = effect.moves_start
         fit = fit_effect(problem, model, effect, step.fit.granularity, rows, start=step.fit.values, max_iter=6,
                          refit=refittable(model), central=central)

@@ -55,10 +55,9 @@ def central_jacobian(residual, lower: np.ndarray, upper: np.ndarray, step: float
 
     def jac(x: np.ndarray, r: np.ndarray) -> np.ndarray:
         x = x.reshape(-1, 1)
-        eye = step * np.eye(len(x))
-        plus, minus = np.minimum(x + eye, upper), np.maximum(x - eye, lower)
-        both = residual(np.concatenate([plus, minus], axis=1))
         n = len(x)
+        plus, minus = np.minimum(x + step * np.eye(n), upper), np.maximum(x - step * np.eye(n), lower)
+        both = residual(np.concatenate([plus, minus], axis=1))
         return (both[:, :n] - both[:, n:]) / (plus - minus).diagonal()
 
     return jac
