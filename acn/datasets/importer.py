@@ -272,7 +272,7 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
     table = read_table(log)
     mapping = read_map(Path(map_path) if map_path else None)
     cols = resolve_columns(table, mapping)
-    read = {e if isinstance(e, str) else e["column"] for e in mapping.values()} | set(KNOWN_COLUMNS)
+    read = {naming.map_column(e) for e in mapping.values()} | set(KNOWN_COLUMNS)
     unused = [c for c in table if c not in read]
     suggested = _draft_map(table, unused, cols)
     quaternion = any(c in cols for c in QUAT_COLUMNS)

@@ -49,6 +49,11 @@ def words(name: str) -> set[str]:
     return {w.lower() for w in re.split(r"[^A-Za-z0-9]+", spaced) if w}
 
 
+def _legs(w: set[str]) -> list[str]:
+    """The schema's legs the words ``w`` name (any one of a leg's word sets)."""
+    return [g for g, options in _LEGS.items() if any(o <= w for o in options)]
+
+
 def _one(found: list[str]) -> str | None:
     return found[0] if len(found) == 1 else None
 
@@ -58,7 +63,7 @@ def channel_of(name: str) -> str | None:
     (``FR_hip_dq`` -> ``FR_hip_vel``; ``q_des_FL_calf`` -> ``action.FL_calf``; ``gyro_x`` ->
     ``base_angvel_x``; ``FR_foot_contact`` -> ``FR_contact``)."""
     w = words(name)
-    legs = [g for g, options in _LEGS.items() if any(o <= w for o in options)]
+    legs = _legs(w)
     joints = [j for j, options in _JOINTS.items() if options & w]
     if not legs and not joints:
         return _index_channel(w) or _trunk_channel(w)
@@ -140,7 +145,7 @@ def foot_force_of(name: str) -> str | None:
     """The leg whose foot force a column name describes (``FR_foot_force``, ``footForce[0]`` as
     ``footForce_FR`` by ``elements``), or None."""
     w = words(name)
-    legs = [g for g, options in _LEGS.items() if any(o <= w for o in options)]
+    legs = _legs(w)
     if len(legs) != 1 or not _FORCE & w or _COMMAND & w or any(o & w for o in _JOINTS.values()):
         return None
     return legs[0]
@@ -194,12 +199,17 @@ def suggest_map(columns: list[str], wanted: list[str],
     return out
 
 
+def map_column(entry: str | dict) -> str:
+    """The log's column a ``--map`` entry reads (a column name, or ``{"column": ..., ...}``)."""
+    return entry if isinstance(entry, str) else entry["column"]
+
+
 ARRAY_ORDER = "the schema's order: joints FR, FL, RR, RL x hip, thigh, calf (as Unitree's SDK), axes x, y, z"
 
 
 def arrays_read(suggested: dict[str, str]) -> str:
     """"; arrays read in ..." where a draft map reads array elements (their order is assumed), else ""."""
-    columns = [c if isinstance(c, str) else c["column"] for c in suggested.values()]
+    columns = [map_column(entry) for entry in suggested.values()]
     return f"; arrays read in {ARRAY_ORDER}" if any(c.endswith("]") for c in columns) else ""
 
 

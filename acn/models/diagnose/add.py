@@ -62,14 +62,6 @@ def _granularities(effect, finest: str) -> list[str]:
     return list(GRANULARITIES[: GRANULARITIES.index(finest) + 1])
 
 
-def _final_rows(problem: Problem, cfg: DiagnoseConfig) -> np.ndarray:
-    """The rows an added effect's final fit is made on: ``cfg.fit_rows`` of them, or the ranking's
-    rows where those are more."""
-    more = problem.sample(problem.fit_rows, cfg.fit_rows, salt=5)
-    rows = rank_rows(problem, cfg)
-    return more if len(more) > len(rows) else rows
-
-
 def choose_fit(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, judge_rows: np.ndarray,
                base_residual: np.ndarray, start: EffectFit | None = None) -> tuple[EffectFit, Judgement]:
     """The effect fitted at the coarsest granularity (down to ``cfg.finest``) no finer one
@@ -87,13 +79,22 @@ def choose_fit(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, j
             continue
         if judge(problem, fit.model, judge_rows, best[1].residual_after, reference_mse=best[1].mse_before).significant:
             best = (fit, judge(problem, fit.model, judge_rows, base_residual))
-    fit = best[0]
-    more = _final_rows(problem, cfg)
-    if len(more) > len(rows):  # refine on more rows, starting from the chosen values
-        fit = fit_effect(problem, model, effect, fit.granularity, more, start=fit.values, max_iter=6,
-                         refit=refittable(model))
-    fit = instrumental_refit(problem, model, fit, more, refit=refittable(model))
+    fit = _final_fit(problem, model, best[0], cfg)
     return fit, judge(problem, fit.model, judge_rows, base_residual)
+
+
+def _final_fit(problem: Problem, model: Model, fit: EffectFit, cfg: DiagnoseConfig, again: bool = False,
+               central: bool = False) -> EffectFit:
+    """``fit`` refitted on ``cfg.fit_rows`` rows from its values at its granularity (where those are
+    more than the ranking's rows it was fitted on, or ``again``: on another base model), then the
+    instrumental refit on the same rows; ``central``: both with central differences."""
+    rows, ranked = problem.sample(problem.fit_rows, cfg.fit_rows, salt=5), rank_rows(problem, cfg)
+    more = len(rows) > len(ranked)
+    rows = rows if more else ranked
+    if again or more:
+        fit = fit_effect(problem, model, fit.effect, fit.granularity, rows, start=fit.values, max_iter=6,
+                         refit=refittable(model), central=central)
+    return instrumental_refit(problem, model, fit, rows, refit=refittable(model), central=central)
 
 
 def refine_chain(problem: Problem, before: Comparison, steps: list[Added], cfg: DiagnoseConfig,
@@ -112,12 +113,7 @@ def refine_chain(problem: Problem, before: Comparison, steps: list[Added], cfg: 
     current = out[-1].after if out else before
     residual = out[-1].judgement.residual_after if out else base_residual
     for step in steps[first:]:
-        model, effect = current.model, step.fit.effect
-        rows = _final_rows(problem, cfg)
-        central = effect.moves_start
-        fit = fit_effect(problem, model, effect, step.fit.granularity, rows, start=step.fit.values, max_iter=6,
-                         refit=refittable(model), central=central)
-        fit = instrumental_refit(problem, model, fit, rows, refit=refittable(model), central=central)
+        fit = _final_fit(problem, current.model, step.fit, cfg, again=True, central=step.fit.effect.moves_start)
         judgement = judge(problem, fit.model, judge_rows, residual)
         out.append(Added(fit, judgement, current, compare(problem, fit.model, cfg)))
         current, residual = out[-1].after, judgement.residual_after
