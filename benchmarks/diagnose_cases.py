@@ -80,6 +80,7 @@ from acn.toolkit.effects import Model  # noqa: E402
 from acn.toolkit.state import GROUPS  # noqa: E402
 
 OFFSETS = np.array([0.05, -0.08, 0.1, -0.04, 0.06, -0.12, 0.03, 0.09, -0.07, -0.1, 0.04, 0.08])
+WEAK = np.array([1.0, 1.0, 0.5, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0])  # FR_calf at half strength
 
 
 def _joints(attr: str, value: float):
@@ -159,6 +160,8 @@ OTHER = {
     "floor 0.5 (pace)": ({"spec_edit": _floor(0.5), "controller": "pace"}, "effect", "ground_friction", "value", 0.5),
     "nominal (pace)": ({"controller": "pace"}, "none", None, None, None),
     "torque limit 20": ({"torque_limit": 20.0}, "effect", "torque_limit", "value", 20.0),  # reached in ~4 % of steps
+    # one motor at half strength (a failing driver), the other eleven nominal: a shared strength cancels it
+    "weak FR_calf 0.5": ({"strength": WEAK}, "effect", "motor_strength", "scale", WEAK),
 }
 
 

@@ -37,7 +37,7 @@ class LogSpec:
     kd: float | tuple[float, ...] = 1.5
     torque_limit: float = 33.5
     latency_steps: int = 0               # physics steps a command arrives late
-    strength: float = 1.0                # torque produced / commanded
+    strength: float | np.ndarray = 1.0   # torque produced / commanded: every joint, or 12 in JOINT_NAMES order
     gains: tuple[float, float] = (1.0, 1.0)  # the PD really runs with (kp, kd) times these
     deadband: float = 0.0                # rad, total width of a dead band on the PD error
     encoder_offset: np.ndarray | None = None  # (12,) rad, the PD and the log read q + offset

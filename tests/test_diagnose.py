@@ -474,23 +474,26 @@ def test_low_pass_filtered_joint_velocities_are_derived_and_the_damping_is_found
 
 
 def test_one_weak_motor_is_found_where_a_shared_strength_is_not_significant(tmp_path):
-    """One motor (FR_calf) at half strength: fitted as one strength for every joint it is 0.915,
-    not significant, and nothing plausible is. The finer look fits the per-joint candidates per
-    joint type and per leg, --auto refines that to the joint, and the weak motor is named."""
+    """One motor (FR_calf) at half strength in a short noisy log: fitted as one strength for
+    every joint it removes 4 % of the error (z 2.2), and nothing plausible does; the linear noise floor
+    calls the error noise (7 % structured, while the true strengths remove 31 % of it). The
+    finer look runs all the same, fits the per-joint candidates per joint type, per leg and per
+    joint, and the weak motor is named. Before the finer look fitted single joints (this seed):
+    verdict none; per leg the fit is 0.71 for the FR leg (z 2.2)."""
     from acn.datasets.importer import ImportConfig, import_log
 
     strength = np.ones(12)
     strength[JOINT_NAMES.index("FR_calf")] = 0.5
-    write_log(tmp_path / "log.csv", LogSpec(noise=1.0, seed=41, strength=strength))
+    write_log(tmp_path / "log.csv", LogSpec(noise=1.0, seed=42, strength=strength))
     path, _ = import_log(tmp_path / "log.csv", tmp_path / "log", ImportConfig(50, 60.0, 1.5, 33.5))
     cfg = replace(FAST, candidates=("motor_strength", "joint_damping", "payload", "armature"), auto_alternatives=0)
     d = diagnose(load_measurements(path), Model.parse("mujoco"), cfg, automatic=True)
     first = d.ranking[0]
-    assert first.name == "motor_strength" and first.fit.granularity in ("type", "leg"), (first.name, d.reason)
+    assert first.name == "motor_strength" and first.fit.granularity == "joint", (first.name, d.reason)
     assert [a.name for a in d.added] == ["motor_strength"] and d.verdict == "effect", d.reason
     scale = np.asarray(d.added[0].fit.values["scale"])
-    assert abs(scale[JOINT_NAMES.index("FR_calf")] - 0.5) < 0.075, scale   # measured 0.5035
-    assert np.abs(np.delete(scale, JOINT_NAMES.index("FR_calf")) - 1.0).max() < 0.1, scale
+    assert abs(scale[JOINT_NAMES.index("FR_calf")] - 0.5) < 0.075, scale   # measured 0.516
+    assert np.abs(np.delete(scale, JOINT_NAMES.index("FR_calf")) - 1.0).max() < 0.1, scale  # 0.07
 
 
 def test_a_noisy_log_of_a_motion_capture_body_names_its_frame(tmp_path):
