@@ -475,11 +475,11 @@ def test_low_pass_filtered_joint_velocities_are_derived_and_the_damping_is_found
 
 def test_one_weak_motor_is_found_where_a_shared_strength_is_not_significant(tmp_path):
     """One motor (FR_calf) at half strength in a short noisy log: fitted as one strength for
-    every joint it removes 4 % of the error (z 2.2), and nothing plausible does; the linear noise floor
-    calls the error noise (7 % structured, while the true strengths remove 31 % of it). The
-    finer look runs all the same, fits the per-joint candidates per joint type, per leg and per
-    joint, and the weak motor is named. Before the finer look fitted single joints (this seed):
-    verdict none; per leg the fit is 0.71 for the FR leg (z 2.2)."""
+    every joint it removes 4 % of the error (z 2.2), and nothing plausible does; the linear
+    noise floor calls the error noise (7 % structured, while the true strengths remove 31 % of
+    it). The finer look runs all the same, fits the per-joint candidates per joint, and the weak
+    motor is named. Before the finer look fitted single joints (this seed): verdict none; per
+    leg the fit is 0.71 for the FR leg (z 2.2)."""
     from acn.datasets.importer import ImportConfig, import_log
 
     strength = np.ones(12)

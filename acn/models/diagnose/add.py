@@ -70,9 +70,10 @@ def choose_fit(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, j
     rows = rank_rows(problem, cfg)
     best: tuple[EffectFit, Judgement] | None = None
     for g in _granularities(effect, cfg.finest):
+        # neither joint types nor legs differ, and the ranking did not fit joints apart: no reason to try 12 values
         if best is not None and g == "joint" and best[0].granularity == "shared" and not (
                 start is not None and start.granularity == "joint"):
-            break  # neither joint types nor legs differ, nor did the ranking find joints to: no reason to try 12 values
+            break
         seed = start.values if start is not None and start.granularity == g else (best[0].values if best else None)
         fit = fit_effect(problem, model, effect, g, rows, start=seed, refit=refittable(model))
         if best is None:
