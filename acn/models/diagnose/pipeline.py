@@ -40,7 +40,7 @@ from acn.models.diagnose.compare import Comparison, compare, floor_of, informati
 from acn.models.diagnose.pairing import action_row
 from acn.models.diagnose.problem import DiagnoseConfig, Problem, corrected, prepare
 from acn.models.diagnose.rate import physics_rate
-from acn.models.diagnose.rank import (FINER, STRUCTURED_SHARE, Candidate, doubt, explained_share, finer_look,
+from acn.models.diagnose.rank import (STRUCTURED_SHARE, Candidate, doubt, explained_share, finer_look,
                                       fits_noise_by_size, implausible, one_step_only, rank)
 from acn.models.diagnose.where import breakdown
 from acn.toolkit.effects import Model, get_effect
@@ -230,23 +230,12 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
 
     floor = floor_after(ranking)
     floor_mse = float(np.mean(floor))
-    # The finer look runs even where the floor calls the error noise: the floor's library is
-    # linear, and one weak motor acts in its leg's stance only (half strength on FR_calf: the
-    # true strengths removed 30-40 % of the error of a short noisy log, the floor called 4-7 % of
-    # it structured). There a finer fit must show the structure itself: remove STRUCTURED_SHARE
-    # of the error (a pace log whose robot lies on its back, no effect hidden: hip damping per
-    # joint type removed 2.9 %, z 8, the sensor noise in the start states). And there it is
-    # fitted per joint only: the floor's library has a term per joint type, so what it misses
-    # differs leg by leg or joint by joint, and 12 values fit a leg too (``add.choose_fit``
-    # then takes the coarsest granularity that holds); a nominal log's diagnosis takes 56 s
-    # instead of 86 s with all three granularities (25 s without the finer look).
+    # The finer look runs even where the floor calls the error noise (``rank.finer_look``).
     if mse > 0 and not any(
             c.judgement.significant and not doubt(c) and c.judgement.explained(floor_mse) >= EFFECT_SHARE
             for c in ranking):
-        noise = 1.0 - floor_mse / mse < STRUCTURED_SHARE
         finer = finer_look(problem, model, cfg, judge_rows, residual, ranking,
-                           granularities=("joint",) if noise else FINER,
-                           least_removed=STRUCTURED_SHARE if noise else 0.0, progress=say)
+                           floor_says_noise=1.0 - floor_mse / mse < STRUCTURED_SHARE, progress=say)
         if finer is not ranking:
             ranking, floor = finer, floor_after(finer)
             floor_mse = float(np.mean(floor))
