@@ -3,7 +3,7 @@
 ==================  =========================================  ==================================
 name                parameters                                 realistic (12 kg quadruped)
 ==================  =========================================  ==================================
-joint_damping       value N m s/rad (per joint)                0.1 - 1
+joint_damping       value N m s/rad (per joint)                0.1 - 2 (see below)
 joint_friction      value N m, Coulomb (per joint)             0.1 - 0.6
 armature            value kg m^2, reflected rotor (per joint)  0.005 - 0.03
 actuator_latency    seconds                                    0.002 - 0.025
@@ -21,6 +21,12 @@ base_frame_offset   x, y, z m, roll, pitch rad: the frame the   +-(0.005 - 0.05)
                     trunk is measured in (trunk frame; no yaw:  rad: a marker, a tilted IMU, the
                     flat ground does not see it)               inertial frame PyBullet reports
 ==================  =========================================  ==================================
+
+Joint damping reaches 2 N m s/rad where it stands for the motor's own damping: MuJoCo
+Menagerie's Unitree A1 drives position actuators without a derivative gain, with damping 1 on
+the hips and 2 on the thighs and calves. The range ended at 1 before: a log of that model
+imported with kd 0 had its damping (2.6 for every joint) refused as implausible, and actuator
+latency and a softer ground were named instead.
 """
 
 from __future__ import annotations
@@ -91,7 +97,7 @@ def _base_frame_guess(states: np.ndarray):
 
 CATALOGUE: dict[str, Effect] = {e.name: e for e in (
     Effect("joint_damping", "viscous friction in the joints, tau = -value * qdot",
-           (Parameter("value", "N m s/rad", 0.0, 0.0, 5.0, per_joint=True, realistic=(0.1, 1.0)),),
+           (Parameter("value", "N m s/rad", 0.0, 0.0, 5.0, per_joint=True, realistic=(0.1, 2.0)),),
            _setter("joint_damping"), mujoco="joint.damping", pybullet="changeDynamics(jointDamping)"),
     Effect("joint_friction", "Coulomb friction in the joints, |tau| <= value opposing motion",
            (Parameter("value", "N m", 0.0, 0.0, 3.0, per_joint=True, realistic=(0.1, 0.6)),),
