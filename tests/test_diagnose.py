@@ -496,6 +496,38 @@ def test_one_weak_motor_is_found_where_a_shared_strength_is_not_significant(tmp_
     assert np.abs(np.delete(scale, JOINT_NAMES.index("FR_calf")) - 1.0).max() < 0.1, scale  # 0.07
 
 
+def test_three_joint_effects_of_another_model_are_found_with_damping_per_joint_type(tmp_path):
+    """A1 models of other code (MuJoCo Menagerie's) drive position actuators without a derivative
+    gain and put joint damping 1 (hips) / 2 (thighs, calves) N m s/rad, friction 0.2 N m and
+    armature 0.01 kg m^2 in every joint. On such a log, imported with kd 0 (no noise: the
+    mechanism, not the noise, is tested), --auto first adds one damping for every joint and
+    armature; then damping fitted per joint type beside armature removes half of what is left
+    and friction most of the rest, while the noise floor (linear library) calls it all noise.
+    Before, an added effect never came back finer and the floor stopped the chain: damping 2.02
+    shared + armature per type (hip 0.018), no friction."""
+    from acn.datasets.importer import ImportConfig, import_log
+
+    def other_model(spec):
+        for j in spec.joints:
+            if j.name != "root":
+                j.damping[0] = 1.0 if "hip" in j.name else 2.0
+                j.frictionloss, j.armature = 0.2, 0.01
+
+    write_log(tmp_path / "log.csv", LogSpec(seed=5, kp=100.0, kd=0.0, spec_edit=other_model))
+    path, _ = import_log(tmp_path / "log.csv", tmp_path / "log", ImportConfig(50, 100.0, 0.0, 33.5))
+    cfg = replace(FAST, candidates=("joint_damping", "joint_friction", "armature", "actuator_latency"),
+                  auto_alternatives=0)
+    d = diagnose(load_measurements(path), Model.parse("mujoco"), cfg, automatic=True)
+    steps = [(a.name, a.refines, a.fit.granularity) for a in d.added]
+    assert ("joint_damping", "shared", "type") in steps and d.verdict == "effect", (steps, d.reason)
+    final = {t.name: np.asarray(t.values["value"], float) * np.ones(12) for t in d.final.model.effects}
+    assert sorted(final) == ["armature", "joint_damping", "joint_friction"], steps
+    np.testing.assert_allclose(final["joint_damping"], np.tile([1.0, 2.0, 2.0], 4), atol=0.1)  # 1.04, 2.01, 2.01
+    np.testing.assert_allclose(final["joint_friction"], 0.2, atol=0.03)                        # 0.192
+    np.testing.assert_allclose(final["armature"], 0.01, atol=0.002)                            # 0.0099-0.0101
+    assert "refined joint_damping (shared -> type)" in terminal(d)
+
+
 def test_a_noisy_log_of_a_motion_capture_body_names_its_frame(tmp_path):
     """A log from other code whose trunk is a motion-capture body 6 cm above the trunk origin,
     tilted, with sensor noise: one-step predictions from its states are wrong in every channel.

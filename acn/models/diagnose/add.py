@@ -24,11 +24,11 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from acn.models.diagnose.compare import Comparison, compare
-from acn.models.diagnose.fitting import (GRANULARITIES, EffectFit, default_granularity, fit_effect, instrumental_refit,
-                                         refittable)
+from acn.models.diagnose.fitting import (GRANULARITIES, EffectFit, default_granularity, fit_effect, granularity_of,
+                                         instrumental_refit, refittable)
 from acn.models.diagnose.problem import DiagnoseConfig, Problem
-from acn.models.diagnose.rank import (LARGE_IMPROVEMENT, PARSIMONY_Z, Candidate, Judgement, doubt, fits_noise,
-                                      implausible, judge, paired_z, rank, rank_rows)
+from acn.models.diagnose.rank import (LARGE_IMPROVEMENT, PARSIMONY_Z, STRUCTURED_SHARE, Candidate, Judgement, doubt,
+                                      finer_look, fits_noise, implausible, judge, paired_z, rank, rank_rows)
 from acn.toolkit.effects import Model, get_effect
 
 AUTO_MIN_EXPLAINED = 0.05  # --auto stops when the best candidate explains less of what is left
@@ -50,6 +50,25 @@ class Added:
     @property
     def name(self) -> str:
         return self.fit.effect.name
+
+    @property
+    def refines(self) -> str:
+        """The granularity the effect had in the model before this step ("" where it was not in it):
+        this step fits it finer beside the effects added after it (``greedy``)."""
+        return next((granularity_of(t.effect, t.values) for t in self.before.model.effects if t.name == self.name), "")
+
+
+def names(steps: list[Added]) -> list[str]:
+    """The effects ``steps`` add, each once, in the order first added (a refinement adds none)."""
+    return list(dict.fromkeys(a.name for a in steps))
+
+
+def _refinement(c: Candidate, added: list[Added], model: Model) -> bool:
+    """Whether ``c`` fits an effect ``added`` already holds at a finer granularity than ``model`` has it."""
+    if c.name not in {a.name for a in added}:
+        return False
+    held = next(t for t in model.effects if t.name == c.name)
+    return GRANULARITIES.index(c.fit.granularity) > GRANULARITIES.index(granularity_of(held.effect, held.values))
 
 
 def _granularities(effect, finest: str) -> list[str]:
@@ -162,7 +181,7 @@ class Chain:
 
     @property
     def names(self) -> list[str]:
-        return [a.name for a in self.steps]
+        return names(self.steps)
 
     @property
     def label(self) -> str:
@@ -206,15 +225,26 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
     of the one-step error or ``AUTO_MIN_LONGER`` of the longest-horizon open-loop error.
 
     A candidate whose final fit is not added (``final_doubt``) is set aside and the next one is
-    tried by the same rules. Returns the added effects and those set aside (name -> why)."""
+    tried by the same rules. Returns the added effects and those set aside (name -> why).
+
+    An effect already added comes back as a candidate where the ranking beside the effects added
+    after it fits it finer (joint damping shared by all joints, then per joint type once armature
+    has taken its share: a step that ``refines`` it). The noise floor is an upper bound on the noise
+    (its linear library misses nonlinear structure: on a noise-free log it called 40 % of what two
+    added effects left noise), so a candidate that removes ``STRUCTURED_SHARE`` of what is left by
+    itself is added whatever the floor says."""
     added: list[Added] = []
     noise_fits: set[str] = set()  # added, then found to improve the one step only
     set_aside: dict[str, str] = {}
+    kept_coarse: set[str] = set()  # added; a finer fit of it was not added on its final fit
     current, residual = first, base_residual
-    while len(added) < cfg.auto_max:
-        best = next((c for c in ranking if c.name not in {a.name for a in added} | noise_fits | set(set_aside)
-                     and c.judgement.significant and not doubt(c)), None)
-        if best is None or best.judgement.explained(floor_mse) < AUTO_MIN_EXPLAINED:
+    while len(names(added)) < cfg.auto_max and len(added) < 2 * cfg.auto_max:
+        best = next((c for c in ranking if (c.name not in {a.name for a in added}
+                                            or c.name not in kept_coarse and _refinement(c, added, current.model))
+                     and c.name not in noise_fits | set(set_aside) and c.judgement.significant and not doubt(c)),
+                    None)
+        if best is None or (best.judgement.explained(floor_mse) < AUTO_MIN_EXPLAINED
+                            and best.judgement.removed < STRUCTURED_SHARE):
             break
         if best.judgement.removed < AUTO_MIN_REMOVED and (best.longer_gain or 0.0) < AUTO_MIN_LONGER:
             break
@@ -222,6 +252,10 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
             progress(f"adding {best.name}", None)
         step = add_effect(problem, current.model, best.name, cfg, judge_rows, residual, current, start=best.fit)
         why = final_doubt(step)
+        if step.refines and (why or fits_noise(longer_gain(step), step.fit.effect)
+                             or GRANULARITIES.index(step.fit.granularity) <= GRANULARITIES.index(step.refines)):
+            kept_coarse.add(best.name)  # the effect stays as added
+            continue
         if why:
             set_aside[best.name] = why
             if progress:
@@ -232,8 +266,14 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
             continue
         added.append(step)
         current, residual = step.after, step.judgement.residual_after
-        if len(added) < cfg.auto_max:
+        if len(names(added)) < cfg.auto_max:
             ranking = rank(problem, current.model, cfg, judge_rows, residual, progress)
+            held = {t.name: granularity_of(t.effect, t.values) for t in current.model.effects}
+            coarse = [n for n in names(added) if n not in kept_coarse and held[n] == "shared" != cfg.finest
+                      and default_granularity(get_effect(n)) != "joint"]
+            if len(added) > 1 and coarse:  # fit them finer beside the effects added after them
+                ranking = finer_look(problem, current.model, cfg, judge_rows, residual, ranking, progress=progress,
+                                     only=coarse)
     return added, set_aside
 
 
@@ -313,14 +353,15 @@ def revisit(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows
     as gains 0.87 / 0.97 and friction 0.31). Beside the others, the effect is ranked against the
     simpler candidates not in the model (fewer parameters at their default granularity), with
     ``rank``'s simpler-explanation rule; where one takes its place, the chain is refitted in the
-    same order from ``first``.
+    same order from ``first`` (each effect once: ``choose_fit`` chooses its granularity again).
     """
-    if len(added) < 2:
+    effects = names(added)
+    if len(effects) < 2:
         return added
-    names = [a.name for a in added]
+    chosen = list(effects)
     final = added[-1].after.model
-    for i, a in enumerate(added):
-        simpler = tuple(n for n in cfg.candidates if n not in names and _size(n) < _size(a.name))
+    for i, a in enumerate(next(s for s in added if s.name == n) for n in effects):
+        simpler = tuple(n for n in cfg.candidates if n not in chosen and _size(n) < _size(a.name))
         if not simpler:
             continue
         others = Model(final.backend, [t for t in final.effects if t.name != a.name], final.corrector)
@@ -330,11 +371,11 @@ def revisit(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows
         again = rank(problem, others, replace(cfg, candidates=(a.name, *simpler)), judge_rows, residual)
         top = next((c for c in again if c.judgement.significant and not doubt(c)), None)
         if top is not None and top.name != a.name:
-            names[i] = top.name
-    if names == [a.name for a in added]:
+            chosen[i] = top.name
+    if chosen == effects:
         return added
     chain, current, residual = [], first, base_residual
-    for name in names:
+    for name in chosen:
         if progress:
             progress(f"adding {name}", None)
         step = add_effect(problem, current.model, name, cfg, judge_rows, residual, current)

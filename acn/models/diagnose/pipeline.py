@@ -35,7 +35,7 @@ import numpy as np
 
 from acn.datasets import checks
 from acn.datasets.measurements import Measurements
-from acn.models.diagnose.add import Added, Chain, add_effect, auto, longest_removed, refine_chain
+from acn.models.diagnose.add import Added, Chain, add_effect, auto, longest_removed, names, refine_chain
 from acn.models.diagnose.compare import Comparison, compare, floor_of, informative_horizon
 from acn.models.diagnose.pairing import action_row
 from acn.models.diagnose.problem import DiagnoseConfig, Problem, corrected, prepare
@@ -92,11 +92,11 @@ def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Cand
     structured = 1.0 - floor_mse / mse if mse > 0 else 0.0
     if automatic and added:
         share = explained_share(mse, added[-1].judgement.mse_after, floor_mse)
-        names = " + ".join(a.name for a in added)
-        explain = f"{names} explains" if len(added) == 1 else f"{names} explain"
+        effects = tuple(names(added))
+        explain = f"{' + '.join(effects)} explains" if len(effects) == 1 else f"{' + '.join(effects)} explain"
         if share >= EFFECT_SHARE:
             return "effect", f"{explain} {share:.0%} of the error above the noise floor", \
-                tuple(a.name for a in added)
+                effects
         after = added[-1].judgement.mse_after
         left = 1.0 - floor_mse / after if after > 0 else 0.0
         if min(structured, left) < STRUCTURED_SHARE:  # what is left is noise, by the rule that gives "none"
@@ -107,7 +107,7 @@ def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Cand
                    f"only {max(left, 0):.0%} of the one-step error left is predictable from the state and actions, "
                    f"against {structured:.0%} before")
             return "effect", (f"{explain} {share:.0%} of the error above the noise floor{gain}, and what is "
-                              f"left matches within the noise: {why}"), tuple(a.name for a in added)
+                              f"left matches within the noise: {why}"), effects
     plausible = [c for c in ranking if c.judgement.significant and not doubt(c) and c.name not in set_aside]
     top = plausible[0] if plausible else None
     aside = "".join(f"; {name} set aside: {why}" for name, why in set_aside.items())

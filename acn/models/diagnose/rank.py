@@ -33,6 +33,7 @@ and without it. A candidate's evidence:
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -312,7 +313,7 @@ def order(problem: Problem, model: Model, cfg: DiagnoseConfig, out: list[Candida
 
 def finer_look(problem: Problem, model: Model, cfg: DiagnoseConfig, judge_rows: np.ndarray,
                base_residual: np.ndarray, ranking: list[Candidate], floor_says_noise: bool = False,
-               progress=None) -> list[Candidate]:
+               progress=None, only: Collection[str] | None = None) -> list[Candidate]:
     """``ranking`` with its per-joint candidates fitted again per joint type, per leg and per
     joint (``FINER``), for where no significant, plausible candidate explains most of the error
     above the floor (``pipeline.diagnose``). An effect that differs joint by joint can cancel in
@@ -331,9 +332,12 @@ def finer_look(problem: Problem, model: Model, cfg: DiagnoseConfig, judge_rows: 
     sensor noise in the start states). It is fitted per joint only there: what a per-type
     library misses differs leg by leg or joint by joint, 12 values fit a leg too, and
     ``add.choose_fit`` then takes the coarsest granularity that holds (a nominal log's
-    diagnosis: 56 s, against 86 s with all three granularities and 25 s without the look)."""
-    shared = [c for c in ranking
-              if c.fit.granularity == "shared" and any(p.per_joint for p in c.fit.effect.parameters)]
+    diagnosis: 56 s, against 86 s with all three granularities and 25 s without the look).
+
+    ``only``: the candidates looked at (``add.greedy``: the effects it added, beside those added
+    after them)."""
+    shared = [c for c in ranking if c.fit.granularity == "shared" and (only is None or c.name in only)
+              and any(p.per_joint for p in c.fit.effect.parameters)]
     rows = rank_rows(problem, cfg)
     granularities, least_removed = (("joint",), STRUCTURED_SHARE) if floor_says_noise else (FINER, 0.0)
     out, changed = list(ranking), False

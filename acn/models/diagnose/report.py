@@ -19,8 +19,10 @@ JSON keys (the machine-readable contract):
   null when not significant), ``score``, ``implausible`` (why it cannot be the explanation, "" if it
   can: ``rank.doubt``), ``longest_horizon_removed`` (share of the open-loop error at the
   check's horizon, ``step.check_horizon``, it removes; null where not checked: ``rank.screen``);
-- ``added`` (with ``--add`` / ``--auto``): in order, ``name``, ``params``, ``error_before`` and
-  ``error_after`` (horizon -> group), ``headline_before``, ``headline_after``, ``explained``;
+- ``added`` (with ``--add`` / ``--auto``): in order, ``name``, ``params``, ``granularity``,
+  ``refines`` (the granularity of an effect added before and fitted finer in this step, else
+  null), ``error_before`` and ``error_after`` (horizon -> group), ``headline_before``,
+  ``headline_after``, ``explained``;
 - ``model`` and ``final_model``: the model files before and after;
 - ``closed_loop`` (with ``--closed-loop``, else null): the robot re-run beside the model from
   held-out initial states (``transfer``): ``runs`` by name (``uncorrected`` = the model as
@@ -110,8 +112,16 @@ def _candidate(c: Candidate, floor_mse: float) -> dict:
             "longest_horizon_removed": None if c.longer_gain is None else round(c.longer_gain, 4)}
 
 
+def _step(a: Added) -> str:
+    """"added joint_damping (shared)", or "refined joint_damping (shared -> type)" for a finer fit."""
+    if a.refines:
+        return f"refined {a.name} ({a.refines} -> {a.fit.granularity})"
+    return f"added {a.name} ({a.fit.granularity})"
+
+
 def _added(a: Added, floor_mse: float) -> dict:
     return {"name": a.name, "params": a.fit.effect.to_json(a.fit.values), "granularity": a.fit.granularity,
+            "refines": a.refines or None,
             "free_parameters": _free(a.fit), "error_before": _errors(a.before), "error_after": _errors(a.after),
             "headline_before": a.before.headline, "headline_after": a.after.headline,
             "explained": a.judgement.explained(floor_mse), "removed": a.judgement.removed}
@@ -200,7 +210,7 @@ def terminal(d: Diagnosis) -> str:
     out += [f"set aside: {c.name} {doubt(c)}" for c in d.ranking if c.judgement.significant and doubt(c)]
     out += [f"set aside by --auto: {name} {why}" for name, why in d.set_aside.items()]
     for a in d.added:
-        out += ["", f"added {a.name} ({a.fit.granularity}): {a.fit.effect.to_json(a.fit.values)}"]
+        out += ["", f"{_step(a)}: {a.fit.effect.to_json(a.fit.values)}"]
         out += [t for t in [_unidentified_text(a.fit), _noise_fit_text(a)] if t]
         out += [f"headline {a.before.headline:.4f} -> {a.after.headline:.4f}", error_table(a.before, a.after)]
     if len(d.chains) > 1:
@@ -282,7 +292,7 @@ def write_html(d: Diagnosis, path: str | Path) -> Path:
         f"<td>{c.judgement.removed:+.1%}</td><td>{c.judgement.z:.1f}</td><td>{_longer(c)}</td>"
         f"<td>{html.escape(_params_text(c.fit))}</td><td>{html.escape(_set_aside_because(d, c))}</td>"
         "</tr>" for c in d.ranking)
-    added = "".join(f"<li><b>{a.name}</b> ({a.fit.granularity}) {html.escape(_params_text(a.fit))}: headline "
+    added = "".join(f"<li>{html.escape(_step(a))} {html.escape(_params_text(a.fit))}: headline "
                     f"{a.before.headline:.4f} &rarr; {a.after.headline:.4f}"
                     + "".join(f"<br><i>{html.escape(t)}</i>" for t in (_unidentified_text(a.fit), _noise_fit_text(a)) if t)
                     + "</li>"
