@@ -53,9 +53,10 @@ class Added:
 
     @property
     def refines(self) -> str:
-        """The granularity the effect had in the model before this step ("" where it was not in it):
-        this step fits it finer beside the effects added after it (``greedy``)."""
-        return next((granularity_of(t.effect, t.values) for t in self.before.model.effects if t.name == self.name), "")
+        """The coarser granularity the effect had in the model before this step, where this step
+        fits it finer ("" otherwise): ``greedy`` fitting an effect again beside those added after it."""
+        held = next((granularity_of(t.effect, t.values) for t in self.before.model.effects if t.name == self.name), "")
+        return held if held and GRANULARITIES.index(self.fit.granularity) > GRANULARITIES.index(held) else ""
 
 
 def names(steps: list[Added]) -> list[str]:
@@ -238,7 +239,7 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
     set_aside: dict[str, str] = {}
     kept_coarse: set[str] = set()  # added; a finer fit of it was not added on its final fit
     current, residual = first, base_residual
-    while len(names(added)) < cfg.auto_max and len(added) < 2 * cfg.auto_max:
+    while len(names(added)) < cfg.auto_max and len(added) < 2 * cfg.auto_max:  # (refinements: finite, bounded)
         best = next((c for c in ranking if (c.name not in {a.name for a in added}
                                             or c.name not in kept_coarse and _refinement(c, added, current.model))
                      and c.name not in noise_fits | set(set_aside) and c.judgement.significant and not doubt(c)),
@@ -252,9 +253,8 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
             progress(f"adding {best.name}", None)
         step = add_effect(problem, current.model, best.name, cfg, judge_rows, residual, current, start=best.fit)
         why = final_doubt(step)
-        if step.refines and (why or fits_noise(longer_gain(step), step.fit.effect)
-                             or GRANULARITIES.index(step.fit.granularity) <= GRANULARITIES.index(step.refines)):
-            kept_coarse.add(best.name)  # the effect stays as added
+        if best.name in names(added) and (why or not step.refines or fits_noise(longer_gain(step), step.fit.effect)):
+            kept_coarse.add(best.name)  # its finer fit did not hold: the effect stays as added
             continue
         if why:
             set_aside[best.name] = why
@@ -269,8 +269,8 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
         if len(names(added)) < cfg.auto_max:
             ranking = rank(problem, current.model, cfg, judge_rows, residual, progress)
             held = {t.name: granularity_of(t.effect, t.values) for t in current.model.effects}
-            coarse = [n for n in names(added) if n not in kept_coarse and held[n] == "shared" != cfg.finest
-                      and default_granularity(get_effect(n)) != "joint"]
+            coarse = [n for n in names(added) if n not in kept_coarse and held[n] == "shared"
+                      and cfg.finest != "shared" and default_granularity(get_effect(n)) != "joint"]
             if len(added) > 1 and coarse:  # fit them finer beside the effects added after them
                 ranking = finer_look(problem, current.model, cfg, judge_rows, residual, ranking, progress=progress,
                                      only=coarse)
