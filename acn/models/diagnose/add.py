@@ -64,12 +64,11 @@ def names(steps: list[Added]) -> list[str]:
     return list(dict.fromkeys(a.name for a in steps))
 
 
-def _refinement(c: Candidate, added: list[Added], model: Model) -> bool:
-    """Whether ``c`` fits an effect ``added`` already holds at a finer granularity than ``model`` has it."""
-    if c.name not in {a.name for a in added}:
-        return False
-    held = next(t for t in model.effects if t.name == c.name)
-    return GRANULARITIES.index(c.fit.granularity) > GRANULARITIES.index(granularity_of(held.effect, held.values))
+def _refinement(c: Candidate, model: Model) -> bool:
+    """Whether ``c`` fits an effect of ``model`` at a finer granularity than ``model`` has it."""
+    held = next((t for t in model.effects if t.name == c.name), None)
+    return held is not None and (GRANULARITIES.index(c.fit.granularity)
+                                 > GRANULARITIES.index(granularity_of(held.effect, held.values)))
 
 
 def _granularities(effect, finest: str) -> list[str]:
@@ -240,8 +239,8 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
     kept_coarse: set[str] = set()  # added; a finer fit of it was not added on its final fit
     current, residual = first, base_residual
     while len(names(added)) < cfg.auto_max and len(added) < 2 * cfg.auto_max:  # (refinements: finite, bounded)
-        best = next((c for c in ranking if (c.name not in {a.name for a in added}
-                                            or c.name not in kept_coarse and _refinement(c, added, current.model))
+        best = next((c for c in ranking if (c.name not in names(added)
+                                            or c.name not in kept_coarse and _refinement(c, current.model))
                      and c.name not in noise_fits | set(set_aside) and c.judgement.significant and not doubt(c)),
                     None)
         if best is None or (best.judgement.explained(floor_mse) < AUTO_MIN_EXPLAINED
@@ -269,8 +268,8 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
         if len(names(added)) < cfg.auto_max:
             ranking = rank(problem, current.model, cfg, judge_rows, residual, progress)
             held = {t.name: granularity_of(t.effect, t.values) for t in current.model.effects}
-            coarse = [n for n in names(added) if n not in kept_coarse and held[n] == "shared"
-                      and cfg.finest != "shared" and default_granularity(get_effect(n)) != "joint"]
+            coarse = [n for n in names(added) if n not in kept_coarse
+                      and held[n] == "shared" and cfg.finest != "shared"]
             if len(added) > 1 and coarse:  # fit them finer beside the effects added after them
                 ranking = finer_look(problem, current.model, cfg, judge_rows, residual, ranking, progress=progress,
                                      only=coarse)
