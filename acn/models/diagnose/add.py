@@ -55,8 +55,8 @@ class Added:
     def refines(self) -> str:
         """The coarser granularity the effect had in the model before this step, where this step
         fits it finer ("" otherwise): ``greedy`` fitting an effect again beside those added after it."""
-        held = next((granularity_of(t.effect, t.values) for t in self.before.model.effects if t.name == self.name), "")
-        return held if held and GRANULARITIES.index(self.fit.granularity) > GRANULARITIES.index(held) else ""
+        held = _held(self.before.model, self.name)
+        return held if _finer(self.fit.granularity, held) else ""
 
 
 def names(steps: list[Added]) -> list[str]:
@@ -64,11 +64,14 @@ def names(steps: list[Added]) -> list[str]:
     return list(dict.fromkeys(a.name for a in steps))
 
 
-def _refinement(c: Candidate, model: Model) -> bool:
-    """Whether ``c`` fits an effect of ``model`` at a finer granularity than ``model`` has it."""
-    held = next((t for t in model.effects if t.name == c.name), None)
-    return held is not None and (GRANULARITIES.index(c.fit.granularity)
-                                 > GRANULARITIES.index(granularity_of(held.effect, held.values)))
+def _held(model: Model, name: str) -> str:
+    """The granularity ``model`` holds effect ``name`` at ("" where it does not hold it)."""
+    return next((granularity_of(t.effect, t.values) for t in model.effects if t.name == name), "")
+
+
+def _finer(granularity: str, held: str) -> bool:
+    """Whether ``granularity`` is finer than ``held`` (False where nothing is held)."""
+    return bool(held) and GRANULARITIES.index(granularity) > GRANULARITIES.index(held)
 
 
 def _granularities(effect, finest: str) -> list[str]:
@@ -239,10 +242,10 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
     kept_coarse: set[str] = set()  # added; a finer fit of it was not added on its final fit
     current, residual = first, base_residual
     while len(names(added)) < cfg.auto_max and len(added) < 2 * cfg.auto_max:  # (refinements: finite, bounded)
-        best = next((c for c in ranking if (c.name not in names(added)
-                                            or c.name not in kept_coarse and _refinement(c, current.model))
-                     and c.name not in noise_fits | set(set_aside) and c.judgement.significant and not doubt(c)),
-                    None)
+        open_ = [c for c in ranking if c.name not in names(added) or c.name not in kept_coarse  # refinements too
+                 and _finer(c.fit.granularity, _held(current.model, c.name))]
+        best = next((c for c in open_ if c.name not in noise_fits | set(set_aside)
+                     and c.judgement.significant and not doubt(c)), None)
         if best is None or (best.judgement.explained(floor_mse) < AUTO_MIN_EXPLAINED
                             and best.judgement.removed < STRUCTURED_SHARE):
             break
@@ -267,9 +270,8 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
         current, residual = step.after, step.judgement.residual_after
         if len(names(added)) < cfg.auto_max:
             ranking = rank(problem, current.model, cfg, judge_rows, residual, progress)
-            held = {t.name: granularity_of(t.effect, t.values) for t in current.model.effects}
             coarse = [n for n in names(added) if n not in kept_coarse
-                      and held[n] == "shared" and cfg.finest != "shared"]
+                      and _held(current.model, n) == "shared" and cfg.finest != "shared"]
             if len(added) > 1 and coarse:  # fit them finer beside the effects added after them
                 ranking = finer_look(problem, current.model, cfg, judge_rows, residual, ranking, progress=progress,
                                      only=coarse)
