@@ -530,7 +530,7 @@ def view_main(argv: list[str] | None = None) -> int:
 
 # ----------------------------------------------------------------------------- acn-import
 def import_parser() -> argparse.ArgumentParser:
-    from acn.toolkit.backends import ACTION_MODES
+    from acn.toolkit.backends import ACTION_MODES, IMU_ACC_KINDS
     from acn.toolkit.state import FOOT_NAMES
 
     p = _Parser(prog="acn-import", description="Turn a robot log (CSV or Parquet, one row per control step) into a "
@@ -561,6 +561,10 @@ def import_parser() -> argparse.ArgumentParser:
     p.add_argument("--shift-actions", type=int, default=0, metavar="ROWS",
                    help="pair each state with the command this many rows later in its episode (1: the log writes the "
                    "last action sent with the new observation, as the action_row check finds)")
+    p.add_argument("--imu-acc", choices=IMU_ACC_KINDS, default=None,
+                   help="what the logged accelerometer reads: the mean specific force over the control step before "
+                   "the row (mean, the schema's) or at the row's instant (instant: a sensor sampled then, as "
+                   "MuJoCo's accelerometer); default: not stated, acn-diagnose judges it from the log")
     p.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
     return p
 
@@ -590,7 +594,7 @@ def import_main(argv: list[str] | None = None) -> int:
         cfg = ImportConfig(control_hz=args.control_hz, kp=args.kp, kd=args.kd, torque_limit=args.torque_limit,
                            action_mode=args.action_mode, physics_hz=args.physics_hz, dt_tolerance=args.dt_tolerance,
                            linvel_frame=args.linvel_frame, angvel_frame=args.angvel_frame, leg_order=args.leg_order,
-                           shift_actions=args.shift_actions)
+                           shift_actions=args.shift_actions, imu_acc=args.imu_acc)
         path, r = import_log(args.log, args.out, cfg, args.map_file, overwrite=args.overwrite)
         print(f"read {r.rows} rows: {r.transitions} transitions in {r.episodes} episode(s); cut {r.cut_nonfinite} "
               f"row(s) with non-finite values, split at {r.time_breaks} wrong time step(s), dropped "

@@ -51,6 +51,11 @@ With ``--stance-torque``, the controllers are MPC-style on the same clock: legs 
 (``robot_log.LogSpec.stance_torque``), logged with ``action_kp.*``, ``action_kd.*`` and
 ``action_torque.*``.
 
+With ``--accelerometer sensor``, the logs' accelerometer is MuJoCo's sensor, read at each row's
+instant (``robot_log.LogSpec.accelerometer``), not the schema's mean over the control step; the
+logs are imported without ``--imu-acc``, so the diagnosis judges the reading (each line's
+``imu=``, ``acn.models.diagnose.accelerometer``).
+
 With ``--pairs``, logs with TWO hidden effects instead (``--auto``), one line each and:
 
 - ``pairs_both_named``: both hidden effects added, and nothing else;
@@ -200,7 +205,7 @@ def log_spec(args, seed: int, over: dict) -> LogSpec:
                    stale=args.stale, glitches=args.glitches, jitter=args.jitter,
                    velocity_filter=args.velocity_filter, feedforward=args.feedforward,
                    stance_gains=args.stance_gains, stance_torque=args.stance_torque,
-                   **{"controller": "sines", **over})
+                   accelerometer=args.accelerometer, **{"controller": "sines", **over})
 
 
 def import_config(args) -> ImportConfig:
@@ -242,7 +247,8 @@ def pairs(args, root: Path) -> None:
         extra = [f"{n}({', '.join(f'{k}={float(np.mean(v)):.4g}' for k, v in fitted[n].items())})"
                  for n in fitted if n not in {e for e, _, _ in truth}]
         aside = f" set_aside={sorted(d.set_aside)}" if d.set_aside else ""
-        print(f"{name:18s} verdict={d.verdict:11s} both={'yes' if both else 'no':3s} {' '.join(cells)}"
+        print(f"{name:18s} verdict={d.verdict:11s} imu={d.accelerometer.kind:7s} both={'yes' if both else 'no':3s} "
+              f"{' '.join(cells)}"
               f"{' also ' + ' '.join(extra) if extra else ''}{aside} {time.perf_counter() - t:.0f}s", flush=True)
     print(f"pairs_both_named={named[0]}/{named[1]}")
     print(f"pairs_within_15pct={within[0]}/{within[1]}")
@@ -275,6 +281,8 @@ def main() -> None:
                     metavar="KP,KD", help="gains per row: legs in stance run KP, KD times the nominal gains")
     ap.add_argument("--stance-torque", action="store_true",
                     help="MPC-style: legs in stance get kp 0 and a torque from the readings, legs in swing the PD")
+    ap.add_argument("--accelerometer", choices=("mean", "sensor"), default="mean",
+                    help="the logs' accelerometer: the mean over the control step, or MuJoCo's sensor (an instant)")
     ap.add_argument("--glitches", type=float, default=0.0,
                     help="share of rows with one reading off by robot_log.GLITCH x its noise (a corrupted packet)")
     args = ap.parse_args()
@@ -305,7 +313,7 @@ def main() -> None:
         seconds = time.perf_counter() - t
         tally["verdict_right"][0] += d.verdict == want
         tally["verdict_right"][1] += 1
-        line = f"{name:18s} verdict={d.verdict:11s} first={d.ranking[0].name:16s}"
+        line = f"{name:18s} verdict={d.verdict:11s} imu={d.accelerometer.kind:7s} first={d.ranking[0].name:16s}"
         if effect:
             first = d.ranking[0].name == effect
             tally["ranked_first"][0] += first

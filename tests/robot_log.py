@@ -69,6 +69,8 @@ class LogSpec:
     torque_control: bool = False         # the controller runs the PD itself, on the MEASURED (noisy) joint
     # angles and speeds, once per control step, and sends torques: the log's actions are N m
     # (acn-import --action-mode torque); the motor applies them held, through latency and strength
+    accelerometer: str = "mean"          # "mean": the specific force over the control period (the schema's);
+    # "sensor": MuJoCo's accelerometer at the trunk origin, read at the row's instant (the last physics step)
     rename: dict[str, tuple[str, float]] = field(default_factory=dict)  # ours -> (column, scale)
     drop: tuple[str, ...] = ()           # channels left out of the log
 
@@ -84,6 +86,10 @@ def _spec(s: LogSpec) -> mujoco.MjSpec:
     for j in JOINT_NAMES:
         spec.joint(URDF_JOINT[j]).actfrclimited = mujoco.mjtLimited.mjLIMITED_FALSE
         spec.add_actuator(name=j, target=URDF_JOINT[j], trntype=mujoco.mjtTrn.mjTRN_JOINT).gainprm[0] = 1.0
+    if s.accelerometer == "sensor":
+        spec.body("trunk").add_site(name="imu")
+        spec.add_sensor(name="imu_acc", type=mujoco.mjtSensor.mjSENS_ACCELEROMETER, objtype=mujoco.mjtObj.mjOBJ_SITE,
+                        objname="imu")
     if s.spec_edit:
         s.spec_edit(spec)
     return spec
@@ -202,9 +208,11 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
         clock, last = 0, 1.0 / s.control_hz  # physics steps since the episode started; the last period, s
         for k in range(int(s.seconds * s.control_hz)):
             rot = d.xmat[m.body("trunk").id].reshape(3, 3)
-            acc = (d.qvel[0:3] - v_prev) / last + np.array([0, 0, G])
+            acc = rot.T @ ((d.qvel[0:3] - v_prev) / last + np.array([0, 0, G]))
+            if s.accelerometer == "sensor":
+                acc = d.sensor("imu_acc").data.copy()
             state = np.concatenate([d.qpos[0:3], _rpy(d.qpos[3:7]), d.qpos[qadr] + offset, rot.T @ d.qvel[0:3],
-                                    d.qvel[3:6], qd_logged, touching, rot.T @ acc])
+                                    d.qvel[3:6], qd_logged, touching, acc])
             if s.marker is not None:
                 state = _as_marker(state, rot, np.asarray(s.marker, float))
             row = len(rows["timestamp"])

@@ -92,17 +92,17 @@ def test_bad_model_files_are_one_line_errors(tmp_path, bad, message):
     assert "\n" not in str(e.value)
 
 
-@pytest.mark.parametrize("backend, gains, backlash", [("mujoco", False, 0.02), ("pybullet", False, 0.02),
-                                                     ("mujoco", True, 0.0), ("mujoco", True, 0.02),
-                                                     ("pybullet", True, 0.02)])
-def test_resimulation_reproduces_the_backend_step_by_step(backend, gains, backlash):
+@pytest.mark.parametrize("backend, gains, backlash, imu", [
+    ("mujoco", False, 0.02, "instant"), ("pybullet", False, 0.02, "mean"), ("mujoco", True, 0.0, "mean"),
+    ("mujoco", True, 0.0, "instant"), ("mujoco", True, 0.02, "mean"), ("pybullet", True, 0.02, "instant")])
+def test_resimulation_reproduces_the_backend_step_by_step(backend, gains, backlash, imu):
     """Batch re-simulation from recorded states (with latency history) equals stepping the backend;
     also with gains that change every step (``hybrid``: MuJoCo's four actuators per joint
-    without a dead band, the law in numpy with one)."""
+    without a dead band, the law in numpy with one), and with either accelerometer (``imu``)."""
     params = ModelParams(latency=0.027, encoder_offset=0.03, payload_mass=1.0, payload_com=[0.02, 0.0, 0.01],
                          backlash=backlash, armature=0.01, kp_scale=0.8, kd_scale=1.2, motor_strength=0.9,
                          base_frame_offset=[0.03, -0.02, 0.05, 0.02, -0.03, 0.04])
-    cfg = SimConfig(params=params, hybrid=gains)
+    cfg = SimConfig(params=params, hybrid=gains, imu_acc=imu)
     s0, trot = initial_state(CollectConfig(), 1), Trot()
     states, actions, nexts, efforts = [], [], [], []
     with make_backend(backend, cfg) as sim:

@@ -46,7 +46,7 @@ from acn.datasets import checks, naming, schema
 from acn.errors import UserError
 from acn.jsonfile import read_json
 from acn.toolkit.actuation import position_targets
-from acn.toolkit.backends.base import joint_gains, physics_hz_for
+from acn.toolkit.backends.base import IMU_ACC_KINDS, joint_gains, physics_hz_for
 from acn.toolkit.collector import FALL_RULE, Episode, Trace, fallen
 from acn.toolkit.robot import ModelParams, per_joint
 from acn.toolkit.rotations import quat_to_rpy, rpy_to_matrices
@@ -88,6 +88,8 @@ class ImportConfig:
     angvel_frame: str = "body"  # the same for base_angvel
     leg_order: tuple[str, ...] = FOOT_NAMES  # the legs as the log orders them (legged_gym: FL, FR, RL, RR)
     shift_actions: int = 0  # rows: each state takes the command logged this many rows later in its episode
+    imu_acc: str | None = None  # the accelerometer reads the "mean" over the control step or at the "instant" of
+    # the row (``SimConfig.imu_acc``); None: not stated, acn-diagnose judges it from the log
 
 
 @dataclass
@@ -267,6 +269,8 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
     for name, frame in (("--linvel-frame", cfg.linvel_frame), ("--angvel-frame", cfg.angvel_frame)):
         if frame not in FRAMES:
             raise UserError(f"{name} must be one of {', '.join(FRAMES)}, got {frame!r}")
+    if cfg.imu_acc is not None and cfg.imu_acc not in IMU_ACC_KINDS:
+        raise UserError(f"--imu-acc must be one of {', '.join(IMU_ACC_KINDS)} (or not given), got {cfg.imu_acc!r}")
     if sorted(cfg.leg_order) != sorted(FOOT_NAMES):
         raise UserError(f"--leg-order must name each of {', '.join(FOOT_NAMES)} once, got {', '.join(cfg.leg_order)}")
     table = read_table(log)
@@ -322,7 +326,8 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
         "physics_dt": 1.0 / cfg.physics_hz, "substeps": cfg.physics_hz // cfg.control_hz,
         "control_hz": float(cfg.control_hz), "action_mode": cfg.action_mode,
         "kp": joint_gains(cfg.kp), "kd": joint_gains(cfg.kd),
-        "torque_limit": cfg.torque_limit, "model_params": ModelParams().as_json(), "policy": "log",
+        "torque_limit": cfg.torque_limit, "imu_acc": cfg.imu_acc, "model_params": ModelParams().as_json(),
+        "policy": "log",
         "seed": None, "corrector": None, "state_names": list(STATE_NAMES), "action_names": list(ACTION_NAMES),
         "fall_rule": FALL_RULE, "missing_channels": missing, "effort_logged": has_effort,
         "hybrid_actions": action.shape[1] > NUM_JOINTS,

@@ -56,7 +56,7 @@ def collection_metadata(cfg: CollectConfig) -> dict:
         "target": ({"simulator": cfg.target, "version": simulator_version(cfg.target)} if cfg.target else None),
         "physics_dt": sim.physics_dt, "substeps": sim.substeps, "control_hz": round(1.0 / sim.control_dt, 9),
         "action_mode": sim.action_mode, "kp": sim.kp, "kd": sim.kd, "torque_limit": sim.torque_limit,
-        "model_params": sim.params.as_json(),
+        "imu_acc": sim.imu_acc, "model_params": sim.params.as_json(),
         "policy": cfg.policy, "seed": cfg.seed, "seconds": cfg.seconds, "episodes_requested": cfg.episodes,
         "init_noise": asdict(cfg.init_noise),
         "corrector": cfg.corrector,
@@ -73,7 +73,8 @@ def config_from_metadata(acn: dict, **overrides) -> CollectConfig:
 
     params = ModelParams.from_json(acn["model_params"])
     sim = SimConfig(physics_dt=acn["physics_dt"], substeps=acn["substeps"], action_mode=acn["action_mode"],
-                    kp=acn["kp"], kd=acn["kd"], torque_limit=acn["torque_limit"], params=params)
+                    kp=acn["kp"], kd=acn["kd"], torque_limit=acn["torque_limit"], params=params,
+                    imu_acc=acn.get("imu_acc") or "mean")
     kw = dict(source=acn["source"]["simulator"], target=(acn["target"] or {}).get("simulator"), policy=acn["policy"],
               episodes=acn["episodes_requested"], seconds=acn["seconds"], seed=acn["seed"], sim=sim,
               init_noise=InitNoise(**acn["init_noise"]), corrector=None)

@@ -100,6 +100,8 @@ OPTIONAL = {
     "hybrid_actions": (lambda v: isinstance(v, bool), "true or false"),
     "missing_channels": (lambda v: isinstance(v, list) and all(n in STATE_NAMES for n in v),
                          "a list of state channel names"),
+    # what the accelerometer averages over (``SimConfig.imu_acc``); absent or null: not stated (acn-diagnose judges it)
+    "imu_acc": (lambda v: v is None or v in ("mean", "instant"), 'null, "mean" or "instant"'),
 }
 
 

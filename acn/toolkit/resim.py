@@ -60,10 +60,10 @@ class Resimulator:
             raise ValueError("a Resimulator needs at least one model")
         base = self.configs[0]
         for c in self.configs:
-            if (c.physics_dt, c.substeps, c.action_mode, c.hybrid) != \
-                    (base.physics_dt, base.substeps, base.action_mode, base.hybrid):
-                raise ValueError("all models of one Resimulator share physics_dt, substeps, action mode and "
-                                 "whether the actions are hybrid commands")
+            if (c.physics_dt, c.substeps, c.action_mode, c.hybrid, c.imu_acc) != \
+                    (base.physics_dt, base.substeps, base.action_mode, base.hybrid, base.imu_acc):
+                raise ValueError("all models of one Resimulator share physics_dt, substeps, action mode, "
+                                 "whether the actions are hybrid commands and what the accelerometer reads")
         self.actuation = [Actuation.from_config(c) for c in self.configs]
         self.threads = threads or max(1, min(parallel.usable_cpus(), 8))
         self._models: list | None = None   # MuJoCo models, compiled on first use
@@ -169,12 +169,16 @@ class Resimulator:
         return phys, torque
 
     def _store(self, rows, phys0, phys, torque, offset: np.ndarray, frame: np.ndarray, k: int, out: Prediction) -> None:
-        sub = self.configs[0].substeps
+        config = self.configs[0]
+        sub = config.substeps
         ends = phys[:, sub - 1::sub]                               # (n, K, size)
         starts = np.concatenate([phys0[:, None], ends[:, :-1]], axis=1)
+        dt = self.control_dt
+        if config.imu_acc == "instant" and sub > 1:  # the accelerometer reads each control step's last physics step
+            starts, dt = phys[:, sub - 2::sub], config.physics_dt
         n = len(rows)
         pred = self._layout.to_states(ends.reshape(n * k, -1), starts.reshape(n * k, -1), np.repeat(offset, k, axis=0),
-                                      self.control_dt, np.repeat(frame, k, axis=0)).reshape(n, k, STATE_DIM)
+                                      dt, np.repeat(frame, k, axis=0)).reshape(n, k, STATE_DIM)
         eff = torque.reshape(n, k, sub, ACTION_DIM).mean(axis=2)
         bad = ~np.isfinite(pred[..., : SLICES["contact"].start]).all(axis=(1, 2))
         bad |= np.abs(pred[:, :, SLICES["joint_vel"]]).max(axis=(1, 2), initial=0.0) > 500.0

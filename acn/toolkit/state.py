@@ -18,7 +18,8 @@ Frames and units
 - ``imu_acc_*``        accelerometer on the trunk origin, body frame, m/s^2, gravity INCLUDED
   (specific force: reads about +9.81 on z when standing level). It is the mean over the
   last control step: (v_world(t) - v_world(t - dt_control)) / dt_control - g, rotated into
-  the body frame at t.
+  the body frame at t. (A log may state that its sensor reads at the instant instead, over the
+  last physics step: ``acn.imu_acc`` "instant" in the metadata, ``SimConfig.imu_acc``.)
 
 Sensor channels (contacts, IMU) are readings of the last step, not dynamic state: a
 backend's ``set_state`` writes the dynamic channels into the simulator and keeps the sensor

@@ -29,12 +29,13 @@ that fit the noise remove (``noise_fitted``).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from acn.datasets import checks
 from acn.datasets.measurements import Measurements
+from acn.models.diagnose.accelerometer import Accelerometer, read_accelerometer
 from acn.models.diagnose.add import Added, Chain, add_effect, auto, longest_removed, names, refine_chain
 from acn.models.diagnose.compare import Comparison, compare, floor_of, informative_horizon
 from acn.models.diagnose.pairing import action_row
@@ -68,6 +69,7 @@ class Diagnosis:
     data_checks: list[checks.Finding] = field(default_factory=list)  # the measurements' own consistency
     chains: list[Chain] = field(default_factory=list)  # --auto: every chain of added effects tried (``add.auto``)
     set_aside: dict[str, str] = field(default_factory=dict)  # --auto: not added on their final fit: name -> why
+    accelerometer: Accelerometer | None = None  # how the logged accelerometer is read (``accelerometer``)
 
     @property
     def floor_mse(self) -> float:
@@ -202,10 +204,12 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
     t0 = time.perf_counter()
     findings = checks.from_measurements(data) if check_data else []
     problem = prepare(data, model, cfg)
+    judge_rows = problem.sample(problem.held_rows, cfg.judge_rows, salt=4)
+    accelerometer = read_accelerometer(problem, model, judge_rows)
+    problem.control = replace(problem.control, imu_acc=accelerometer.kind)
     say("comparing the model with the measurements")
     before = compare(problem, model, cfg)
     problem.check_horizon = before.check_horizon = informative_horizon(before)
-    judge_rows = problem.sample(problem.held_rows, cfg.judge_rows, salt=4)
     residual = problem.residual_of(model.sim_config(problem.control), judge_rows)
     ok = np.isfinite(residual).all(1)
     judge_rows, residual = judge_rows[ok], residual[ok]
@@ -266,7 +270,7 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
     reason += findings_note(findings, named)
     return Diagnosis(data.description, problem, before, judge_rows, floor, mse, where, ranking, added, v, reason,
                      seconds={"compare": t1 - t0, "rank": t2 - t1, "add": t3 - t2, "total": t3 - t0},
-                     data_checks=findings, chains=chains, set_aside=set_aside)
+                     data_checks=findings, chains=chains, set_aside=set_aside, accelerometer=accelerometer)
 
 
 def explain_corrector(data: Measurements, model: Model, corrector_dir, cfg: DiagnoseConfig | None = None,
@@ -278,8 +282,6 @@ def explain_corrector(data: Measurements, model: Model, corrector_dir, cfg: Diag
     corrector is diagnosed against them (one-step horizon: the synthetic rows do not chain).
     An effect that explains them changes the model the way the corrector does.
     """
-    from dataclasses import replace
-
     from acn.models.corrector import Corrector
     from acn.toolkit.resim import Resimulator
 

@@ -5,6 +5,10 @@ JSON keys (the machine-readable contract):
 - ``verdict``: ``"none"``, ``"effect"`` or ``"unexplained"``; ``reason`` in words;
 - ``data_checks``: the measurements' own consistency findings (``acn.datasets.checks``), each
   ``check``, ``channels``, ``message``; empty when consistent;
+- ``accelerometer``: how the logged accelerometer is read (``accelerometer`` module): ``kind``
+  (``"mean"`` over the control step, the schema's, or ``"instant"``), ``stated`` (by the dataset; else
+  judged), ``instant_share`` and ``instant_better`` (judged: the instant reading's one-step
+  accelerometer MSE over the mean one's, and the share of rows it predicts better; null otherwise);
 - ``headline_error``: its definition and the value before and after the added effects;
 - ``step``: one diagnosis step, ``control_steps`` and ``seconds`` (``DiagnoseConfig.step_seconds``), and
   ``check_horizon``: the steps of the open-loop check (``compare.informative_horizon``);
@@ -133,6 +137,7 @@ def to_json(d: Diagnosis) -> dict:
     return {
         "verdict": d.verdict, "reason": d.reason, "measurements": d.measurements,
         "data_checks": [f.to_json() for f in d.data_checks],
+        "accelerometer": d.accelerometer.to_json() if d.accelerometer else None,
         "rows": {"transitions": len(p.data), "fit": len(p.fit_rows), "held_out": len(p.held_rows),
                  "compared": len(d.before.rows), "diverged": d.before.diverged},
         "derived_channels": p.derived,
@@ -193,6 +198,8 @@ def error_table(before: Comparison, after: Comparison | None = None) -> str:
 def terminal(d: Diagnosis) -> str:
     out = [f"measurements: {d.measurements}; model: {d.before.model.describe()}"]
     out += [f"data check ({f.check}): {f.message}" for f in d.data_checks]
+    if d.accelerometer and d.accelerometer.describe():
+        out += [d.accelerometer.describe()]
     if d.problem.unit > 1:
         out += [f"one step = {d.problem.unit} control steps ({d.problem.unit * d.problem.control.control_dt:.3g} s: "
                 "--step-seconds), so sensor noise does not swamp what an effect does in one control step"]
@@ -303,6 +310,8 @@ def write_html(d: Diagnosis, path: str | Path) -> Path:
                    "model whether each state has the action that drove it and the log the model's time step; a "
                    "model compared with them explains these as physics):</p><ul>"
                    + "".join(f"<li>{html.escape(f.message)}</li>" for f in d.data_checks) + "</ul>") if d.data_checks else ""
+    if d.accelerometer and d.accelerometer.describe():
+        checks_html += f"<p>{html.escape(d.accelerometer.describe())}.</p>"
     body = f"""<!doctype html><html><head><meta charset="utf-8"><title>acn-diagnose: {html.escape(d.measurements)}</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:4px 8px}}</style></head><body>

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from acn.toolkit.backends.base import ACTION_MODES, Backend, SimConfig, SimulationDiverged, default_state
+from acn.toolkit.backends.base import ACTION_MODES, IMU_ACC_KINDS, Backend, SimConfig, SimulationDiverged, default_state
 
 BACKENDS: tuple[str, ...] = ("pybullet", "mujoco")
 
@@ -29,5 +29,5 @@ def make_backend(name: str, config: SimConfig | None = None) -> Backend:
     raise ValueError(f"unknown simulator {name!r}; choose from {', '.join(BACKENDS)}")
 
 
-__all__ = ["ACTION_MODES", "BACKENDS", "Backend", "SimConfig", "SimulationDiverged", "default_state", "make_backend",
-           "simulator_version"]
+__all__ = ["ACTION_MODES", "BACKENDS", "IMU_ACC_KINDS", "Backend", "SimConfig", "SimulationDiverged", "default_state",
+           "make_backend", "simulator_version"]

@@ -20,6 +20,11 @@ mode: the action is a joint torque, clipped to the same limit and held over the 
 Physical effects in ``SimConfig.params`` change this law (latency, gains, strength, limits,
 encoder offsets, dead band) the same way in both backends.
 
+The accelerometer (``imu_acc``) reads the trunk origin's specific force, body frame. By default
+(``SimConfig.imu_acc`` "mean", the dataset schema's) it is the MEAN over the control step that
+ends at the state, (v_end - v_start) / control_dt + g; "instant" reads it over the last physics
+step only, as MuJoCo's ``accelerometer`` sensor and an IMU sampled at the log's instant do.
+
 Joint angles in the state are encoder READINGS (true angle + ``encoder_offset``): ``set_state``
 subtracts the offset before writing the simulator, ``get_state`` adds it back. Likewise the
 trunk's channels are read in the frame ``base_frame_offset`` (``acn.toolkit.frames``; nominal:
@@ -43,6 +48,7 @@ from acn.toolkit.state import ACTION_DIM, DYNAMIC_GROUPS, FOOT_NAMES, NUM_JOINTS
 
 ActionMode = Literal["position", "torque"]
 ACTION_MODES: tuple[str, ...] = ("position", "torque")
+IMU_ACC_KINDS: tuple[str, ...] = ("mean", "instant")  # what the accelerometer averages over (module docstring)
 JointGains = float | tuple[float, ...]  # one value for every joint, or 12 in ``JOINT_NAMES`` order
 
 
@@ -79,6 +85,7 @@ class SimConfig:
     # numbers, the 12 targets, kp, kd, velocity targets and feedforward torques sent together
     # (``HYBRID_PARTS``; kp, kd above are then only recorded, not used by the law).
     hybrid: bool = False
+    imu_acc: str = "mean"  # the accelerometer's reading: "mean" over the control step or "instant" (module docstring)
 
     def __post_init__(self) -> None:
         self.kp, self.kd = joint_gains(self.kp), joint_gains(self.kd)
@@ -102,6 +109,8 @@ class SimConfig:
             raise ValueError(f"physics_dt must be in (0, {MAX_PHYSICS_DT}] s, got {self.physics_dt}")
         if self.substeps < 1:
             raise ValueError(f"substeps must be >= 1, got {self.substeps}")
+        if self.imu_acc not in IMU_ACC_KINDS:
+            raise ValueError(f"imu_acc must be one of {IMU_ACC_KINDS}, got {self.imu_acc!r}")
         if (per_joint(self.kp) < 0).any() or (per_joint(self.kd) < 0).any() or not self.torque_limit > 0:
             raise ValueError("kp and kd must be >= 0 and torque_limit > 0")
 
@@ -234,11 +243,18 @@ class Backend(ABC):
         if a.shape != (width,) or not np.all(np.isfinite(a)):
             raise ValueError(f"action must be a finite vector of shape ({width},)")
         self._state = None
-        tau = self._advance(self._commands(a))
+        commands = self._commands(a)
+        v_before, dt = self._linvel_world, self.config.control_dt
+        if self.config.imu_acc == "instant" and len(commands) > 1:  # the accelerometer reads the last physics step
+            tau = self._advance(commands[:-1]) * (len(commands) - 1)
+            v_before, dt = self._read_dynamics()[2], self.config.physics_dt
+            tau = (tau + self._advance(commands[-1:])) / len(commands)
+        else:
+            tau = self._advance(commands)
         dyn = self._read_dynamics()
         pos, quat, v_world, w_world, q, qd = dyn
         self._check_sane(pos, v_world, w_world, q, qd)
-        acc_world = (v_world - self._linvel_world) / self.config.control_dt
+        acc_world = (v_world - v_before) / dt
         acc_world[2] += GRAVITY
         self._imu_acc = quat_to_matrix(quat).T @ acc_world
         self._linvel_world = v_world

@@ -165,19 +165,20 @@ class PhysicsLayout:
         qvel[:, self.dadr] = s[:, SLICES["joint_vel"]]
         return out
 
-    def to_states(self, physics: np.ndarray, before: np.ndarray, offset: np.ndarray, control_dt: float,
+    def to_states(self, physics: np.ndarray, before: np.ndarray, offset: np.ndarray, dt: float,
                   frame: np.ndarray | None = None) -> np.ndarray:
         """(N, size) physics states at the end of a control step -> (N, 43) states (read in
         ``frame`` (N, 6) where given).
 
-        ``before``: the physics states one control step earlier (for the IMU, the mean specific
-        force over the step). Contacts are not part of a physics state: they come back NaN.
+        ``before``: the physics states ``dt`` s earlier (for the accelerometer, the mean specific
+        force over that time: one control step, or the last physics step, ``SimConfig.imu_acc``).
+        Contacts are not part of a physics state: they come back NaN.
         """
         qpos, qvel = physics[:, 1:1 + self.nq], physics[:, 1 + self.nq:]
         quat = qpos[:, [4, 5, 6, 3]]  # x, y, z, w
         rot = np.moveaxis(np.array(quat_to_matrix(quat.T)), -1, 0)
         v_world = qvel[:, 0:3]
-        acc = (v_world - before[:, 1 + self.nq:1 + self.nq + 3]) / control_dt
+        acc = (v_world - before[:, 1 + self.nq:1 + self.nq + 3]) / dt
         acc[:, 2] += GRAVITY
         out = np.empty((len(physics), STATE_DIM))
         out[:, SLICES["base_pos"]] = qpos[:, 0:3]
