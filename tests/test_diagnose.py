@@ -1021,9 +1021,11 @@ def test_a_log_simulated_at_a_coarser_physics_rate_is_named_and_right_when_impor
 
 def test_an_accelerometer_read_at_each_instant_is_recognised_and_compared_so(tmp_path, acn):
     """A log whose accelerometer is MuJoCo's sensor (read at each row's instant, not the schema's
-    mean over the control step; the pace gait, whose feet land hard) is recognised from the log,
-    with or without sensor noise; one written with the mean is not; a dataset that states its
-    reading (acn-import --imu-acc) is taken at its word. Read so, the model with the hidden
+    mean over the control step; the pace gait, whose feet land hard) is recognised from the log;
+    with sensor noise the instant reading still predicts better in most rows, but noise makes the
+    mean nearly as good (its error 49 % of the mean one's here, at the threshold of a half: either
+    reading may be kept); one written with the mean is not read at an instant; a dataset that
+    states its reading (acn-import --imu-acc) is taken at its word. Read so, the model with the hidden
     damping predicts the accelerometer within a few per cent; read as the mean, it cannot
     (measured: 0.022 against 0.64 after the damping is added, noise-free)."""
     from acn.models.diagnose.accelerometer import read_accelerometer
@@ -1043,7 +1045,7 @@ def test_an_accelerometer_read_at_each_instant_is_recognised_and_compared_so(tmp
         problem = prepare(load_measurements(tmp_path / name), model, FAST)
         read[name] = read_accelerometer(problem, model, problem.sample(problem.held_rows, FAST.judge_rows, salt=4))
     assert read["sensor"].kind == "instant" and read["sensor"].better > 0.85, read["sensor"]  # measured 0.94
-    assert read["noisy sensor"].kind == "instant" and read["noisy sensor"].better > 0.7, read  # 0.81
+    assert read["noisy sensor"].better > 0.7 and read["noisy sensor"].share < 0.8, read  # 0.81, 0.49
     assert read["noisy mean"].kind == "mean" and read["noisy mean"].better < 0.4, read  # 0.33
     assert read["stated"].kind == "mean" and read["stated"].stated and read["stated"].share is None
     d = diagnose(load_measurements(tmp_path / "sensor"), model, FAST, add=["joint_damping"])
@@ -1053,3 +1055,29 @@ def test_an_accelerometer_read_at_each_instant_is_recognised_and_compared_so(tmp
     assert d.final.error[1]["imu_acc"] < 0.1, d.final.error[1]  # measured 0.022
     r = acn("import", str(tmp_path / "sensor.csv"), "--out", str(tmp_path / "bad"), *control, "--imu-acc", "filtered")
     assert r.returncode == 2 and "--imu-acc" in r.stderr
+
+
+def test_an_instant_accelerometer_a_model_far_from_the_robot_hides_is_read_again_with_the_effects(tmp_path):
+    """Another model's A1 (kd 0, damping 1 / 2 / 2, friction 0.2, armature 0.01) with MuJoCo's
+    accelerometer, noise-free: the nominal model is so far from it that the instant reading
+    predicts the accelerometer no better than the mean (measured: 63 % of the error, better in 49 %
+    of the rows): read as the mean. With damping and armature added the instant reading is clearly
+    better (6 %, 96 %): the diagnosis runs again reading it so, and says why."""
+    from acn.datasets.importer import ImportConfig, import_log
+
+    def other_model(spec):
+        for j in spec.joints:
+            if j.name != "root":
+                j.damping[0] = 1.0 if "hip" in j.name else 2.0
+                j.frictionloss, j.armature = 0.2, 0.01
+
+    write_log(tmp_path / "log.csv", LogSpec(seed=5, kp=100.0, kd=0.0, spec_edit=other_model, accelerometer="sensor"))
+    path, _ = import_log(tmp_path / "log.csv", tmp_path / "log", ImportConfig(50, 100.0, 0.0, 33.5))
+    said = []
+    d = diagnose(load_measurements(path), Model.parse("mujoco"), replace(FAST, finest="shared"),
+                 add=["joint_damping", "armature"], progress=lambda msg, fraction=None: said.append(msg))
+    assert any("with the effects added the accelerometer reads at each instant" in m for m in said), said
+    assert d.accelerometer.kind == "instant" and d.accelerometer.again and d.accelerometer.share < 0.2
+    assert "the model with the effects added predicts it better" in terminal(d)
+    assert [a.name for a in d.added] == ["joint_damping", "armature"] and d.verdict == "effect", d.reason
+    assert d.final.error[1]["imu_acc"] < 0.3, d.final.error[1]  # measured 0.18

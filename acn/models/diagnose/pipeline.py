@@ -194,9 +194,13 @@ def noise_fitted(floor: np.ndarray, residual: np.ndarray, ranking: list[Candidat
 
 
 def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None, add: list[str] = (),
-             automatic: bool = False, progress=None, check_data: bool = True) -> Diagnosis:
+             automatic: bool = False, progress=None, check_data: bool = True,
+             accelerometer: Accelerometer | None = None) -> Diagnosis:
     """Run the whole diagnosis (module docstring); ``add``: effects to add in this order;
-    ``check_data``: check the measurements' consistency first (off for synthetic ones)."""
+    ``check_data``: check the measurements' consistency first (off for synthetic ones);
+    ``accelerometer``: how to read it (None: as the dataset states, else judged under ``model``
+    and, where effects are added, again under the final model: where that judgement differs, the
+    diagnosis runs again with it, ``acn.models.diagnose.accelerometer``)."""
     cfg = cfg or DiagnoseConfig()
     for name in add:
         get_effect(name)  # unknown names fail before any work
@@ -205,7 +209,8 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
     findings = checks.from_measurements(data) if check_data else []
     problem = prepare(data, model, cfg)
     judge_rows = problem.sample(problem.held_rows, cfg.judge_rows, salt=4)
-    accelerometer = read_accelerometer(problem, model, judge_rows)
+    given = accelerometer
+    accelerometer = given or read_accelerometer(problem, model, judge_rows)
     problem.control = replace(problem.control, imu_acc=accelerometer.kind)
     say("comparing the model with the measurements")
     before = compare(problem, model, cfg)
@@ -265,6 +270,12 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
         for chain in chains:
             chain.steps = [swap.get(id(s), s) for s in chain.steps]
         added = refined
+    if given is None and not accelerometer.stated and added:
+        again = replace(read_accelerometer(problem, added[-1].after.model, judge_rows), again=True)
+        if again.kind != accelerometer.kind:
+            how = "at each instant" if again.kind == "instant" else "as the mean over the control step"
+            say(f"with the effects added the accelerometer reads {how}: diagnosing again", None)
+            return diagnose(data, model, cfg, add, automatic, progress, check_data, accelerometer=again)
     t3 = time.perf_counter()
     v, reason, named = verdict(before, mse, floor_mse, ranking, added, automatic, set_aside)
     reason += findings_note(findings, named)
