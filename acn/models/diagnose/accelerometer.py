@@ -40,6 +40,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from acn.models.diagnose.problem import Problem
+from acn.toolkit.backends import IMU_ACC_KINDS
 from acn.toolkit.effects import Model
 
 INSTANT_SHARE = 0.5  # the instant reading must leave at most this share of the mean one's accelerometer MSE ...
@@ -80,14 +81,14 @@ class Accelerometer:
 def read_accelerometer(problem: Problem, model: Model, rows: np.ndarray) -> Accelerometer:
     """How to read ``problem``'s accelerometer (module docstring), judged on ``rows`` under ``model``."""
     stated = problem.data.info.get("imu_acc")
-    if stated in ("mean", "instant"):
+    if stated in IMU_ACC_KINDS:
         return Accelerometer(stated, stated=True)
     columns = np.flatnonzero(np.array(problem.group_of_channel()) == "imu_acc")
     if not len(columns) or len(rows) < 8 or problem.control.substeps < 2:
         return Accelerometer("mean", stated=False)  # not compared, or one physics step per control step: the same
     config = model.sim_config(problem.control)
     err = {}
-    for kind in ("mean", "instant"):
+    for kind in IMU_ACC_KINDS:
         with np.errstate(over="ignore", invalid="ignore"):
             r = problem.residual_of(replace(config, imu_acc=kind), rows)[:, columns]
         err[kind] = np.mean(r ** 2, axis=1)
