@@ -18,7 +18,9 @@ Verdict:
 Before any model, the measurements' own consistency is checked (``acn.datasets.checks``: units,
 signs, frames, conventions), and with the model, whether each state is paired with the action
 that drove it (``pairing``); findings are listed with the diagnosis and named in the reason,
-since a model compared with inconsistent data explains the inconsistency as physics.
+since a model compared with inconsistent data explains the inconsistency as physics. What the
+logged accelerometer reads (the mean over the control step, or one instant) is taken from the
+dataset or judged with the model, and judged again under the final model (``accelerometer``).
 
 The noise floor is what ridge regressions on a library of state and action terms cannot
 predict (``noise``) of the model's held-out residual, or of what the best candidates leave,
