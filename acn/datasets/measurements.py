@@ -158,9 +158,7 @@ def load_measurements(path: str | Path, side: str = "source") -> Measurements:
         raise UserError(f"{path} has no {' or '.join(lacking)} channels: a diagnosis needs joint positions and actions")
     if not np.isfinite(action).all():
         raise UserError(f"{path} has non-finite actions")
-    control = SimConfig(physics_dt=acn["physics_dt"], substeps=acn["substeps"], action_mode=acn["action_mode"],
-                        kp=acn["kp"], kd=acn["kd"], torque_limit=acn["torque_limit"], hybrid=hybrid,
-                        imu_acc=acn.get("imu_acc") or "mean")
+    control = schema.control_config(acn, hybrid=hybrid)
     who = (acn.get(side) or {}).get("simulator") or side
     return Measurements(state, action, next_state, effort, cols["episode_index"].astype(np.int64),
                         cols["frame_index"].astype(np.int64), control, acn,

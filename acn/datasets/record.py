@@ -67,14 +67,10 @@ def collection_metadata(cfg: CollectConfig) -> dict:
 
 def config_from_metadata(acn: dict, **overrides) -> CollectConfig:
     """The collection config a dataset was recorded with (inverse of ``collection_metadata``)."""
-    from acn.toolkit.backends import SimConfig
     from acn.toolkit.collector import InitNoise
     from acn.toolkit.robot import ModelParams
 
-    params = ModelParams.from_json(acn["model_params"])
-    sim = SimConfig(physics_dt=acn["physics_dt"], substeps=acn["substeps"], action_mode=acn["action_mode"],
-                    kp=acn["kp"], kd=acn["kd"], torque_limit=acn["torque_limit"], params=params,
-                    imu_acc=acn.get("imu_acc") or "mean")
+    sim = schema.control_config(acn, params=ModelParams.from_json(acn["model_params"]))
     kw = dict(source=acn["source"]["simulator"], target=(acn["target"] or {}).get("simulator"), policy=acn["policy"],
               episodes=acn["episodes_requested"], seconds=acn["seconds"], seed=acn["seed"], sim=sim,
               init_noise=InitNoise(**acn["init_noise"]), corrector=None)

@@ -24,7 +24,12 @@ mode, gains, policy, seed, channel names, the fall rule and how each episode end
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from acn.toolkit.state import ACTION_DIM, ACTION_NAMES, STATE_DIM, STATE_NAMES
+
+if TYPE_CHECKING:
+    from acn.toolkit.backends import SimConfig
 
 ACN_KEY = "acn"
 FORMAT_VERSION = 2  # 2: action.hybrid with the velocity target (48 wide, was 36)
@@ -127,3 +132,14 @@ def acn_block_problem(acn) -> str | None:
         return (f"has inconsistent rates in meta/info.json: physics_dt {acn['physics_dt']} s x substeps "
                 f"{acn['substeps']} is not one control period (control_hz {acn['control_hz']})")
     return None
+
+
+def control_config(acn: dict, **extra) -> SimConfig:
+    """The simulator settings an ``acn`` block records (rates, action mode, gains, torque limit,
+    what the accelerometer reads; an unstated reading is the schema's mean), plus ``extra``
+    ``SimConfig`` fields."""
+    from acn.toolkit.backends import SimConfig  # at run time only: readers of the schema need no simulator
+
+    return SimConfig(physics_dt=acn["physics_dt"], substeps=acn["substeps"], action_mode=acn["action_mode"],
+                     kp=acn["kp"], kd=acn["kd"], torque_limit=acn["torque_limit"],
+                     imu_acc=acn.get("imu_acc") or "mean", **extra)
