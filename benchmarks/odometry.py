@@ -10,7 +10,9 @@ velocity's spread, as ``name=value`` lines:
 - ``tests/robot_log.py`` logs (random smooth joint targets and a pace-like gait, whose feet
   scrape along the ground; 4 episodes x 10 s), without and with typical sensor noise.
 
-``--raw`` turns the smoother off (the per-sample leg estimates alone).
+``--raw`` turns the smoother off (the per-sample leg estimates alone). ``--accelerometer sensor``
+writes the logs' accelerometer as MuJoCo's sensor, read at each row's instant
+(``robot_log.LogSpec.accelerometer``), and imports them with ``--imu-acc instant``.
 """
 
 from __future__ import annotations
@@ -62,6 +64,8 @@ def report(name: str, m: Measurements) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--raw", action="store_true", help="no smoother: the per-sample leg estimates alone")
+    ap.add_argument("--accelerometer", choices=("mean", "sensor"), default="mean",
+                    help="the logs' accelerometer: the mean over the control step, or MuJoCo's sensor (an instant)")
     args = ap.parse_args()
     if args.raw:
         odometry.smooth_velocity = lambda legs, change, dt: legs.copy()
@@ -77,8 +81,9 @@ def main() -> None:
         for controller, seed in (("sines", 101), ("pace", 109)):
             name = f"log_{controller}_noise{noise:g}"
             write_log(root / f"{name}.csv", LogSpec(seconds=10, episodes=4, seed=seed, noise=noise,
-                                                    controller=controller))
-            path, _ = import_log(root / f"{name}.csv", root / name, ImportConfig(50, 60.0, 1.5, 33.5))
+                                                    controller=controller, accelerometer=args.accelerometer))
+            imu_acc = "instant" if args.accelerometer == "sensor" else "mean"
+            path, _ = import_log(root / f"{name}.csv", root / name, ImportConfig(50, 60.0, 1.5, 33.5, imu_acc=imu_acc))
             report(name, load_measurements(path))
 
 

@@ -1050,6 +1050,7 @@ def test_an_accelerometer_read_at_each_instant_is_recognised_and_compared_so(tmp
     assert read["stated"].kind == "mean" and read["stated"].stated and read["stated"].share is None
     d = diagnose(load_measurements(tmp_path / "sensor"), model, FAST, add=["joint_damping"])
     assert d.accelerometer.kind == "instant" and "--imu-acc instant" in terminal(d)
+    assert d.problem.data.control.imu_acc == "instant"  # what leg odometry would fuse it as
     assert to_json(d)["accelerometer"]["kind"] == "instant"
     assert close(d.added[0].fit.values["value"], 0.5, rel=0.05)
     assert d.final.error[1]["imu_acc"] < 0.1, d.final.error[1]  # measured 0.022

@@ -231,3 +231,34 @@ def test_acn_import_says_how_the_missing_trunk_will_be_estimated(tmp_path, capsy
                         "--kd", "1.5", "--torque-limit", "33.5"]) == 0
     out = capsys.readouterr().out
     assert "estimates of them: base_pos by leg odometry, base_linvel by leg odometry" in out, out
+
+
+def test_an_accelerometer_read_at_each_instant_is_fused_by_the_trapezoid_rule(tmp_path):
+    """Samples of a known acceleration at each instant: the trapezoid rule gives the velocity's
+    change to 1.3e-4 of its size where the mean rule errs by 2 %. On a noise-free log of MuJoCo's
+    sensor without motion capture, the odometry that fuses it as read at each instant
+    (``--imu-acc instant``) estimates the trunk's velocity better than the one that takes it for
+    the mean over the step (median 7.1 against 8.4 cm/s, measured)."""
+    from acn.datasets.odometry import velocity_change
+    from acn.toolkit.robot import GRAVITY
+
+    dt, t = 0.02, np.arange(100) * 0.02
+    rot = np.repeat(np.eye(3)[None], len(t), axis=0)
+    force = np.stack([3 * 2 * np.cos(2 * t), np.zeros_like(t), np.full_like(t, GRAVITY)], axis=1)  # v_x = 3 sin 2t
+    true = np.diff(3 * np.sin(2 * t))
+    instant, mean = (velocity_change(force, rot, dt, kind)[1:] for kind in ("instant", "mean"))
+    scale = np.abs(true).max()
+    assert np.abs(instant[:, 0] - true).max() < 1e-3 * scale < 0.1 * np.abs(mean[:, 0] - true).max()
+    assert np.allclose(instant[:, 1:], 0.0) and np.allclose(mean[:, 1:], 0.0)
+
+    write_log(tmp_path / "log.csv", LogSpec(controller="sines", seconds=6.0, episodes=2, seed=101, noise=0.0,
+                                            accelerometer="sensor"))
+    errors = {}
+    for kind in ("instant", "mean"):
+        path, _ = import_log(tmp_path / "log.csv", tmp_path / kind, ImportConfig(50, 60.0, 1.5, 33.5, imu_acc=kind))
+        m = load_measurements(path)
+        filled, _ = fill_derived(m.without(list(NO_MOCAP)))
+        standing = (m.state[:, 2] > 0.15) & (m.frame >= 10)
+        lin = SLICES["base_linvel"]
+        errors[kind] = float(np.median(np.linalg.norm(filled.state[standing, lin] - m.state[standing, lin], axis=1)))
+    assert errors["instant"] < 0.9 * errors["mean"], errors

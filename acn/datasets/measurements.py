@@ -12,7 +12,7 @@ Rows of one episode are consecutive control steps: row t + 1's state is row t's 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -78,6 +78,11 @@ class Measurements:
         return Measurements(self.state[rows], self.action[rows], self.next_state[rows], self.effort[rows],
                             self.episode[rows], self.frame[rows], self.control, self.info, self.description,
                             self.missing, None if self.height is None else self.height.subset(rows))
+
+    def reading_accelerometer(self, kind: str) -> "Measurements":
+        """These measurements with the accelerometer read as ``kind`` (``SimConfig.imu_acc``): how
+        models predict it and leg odometry fuses it (``fill_derived``)."""
+        return self if self.control.imu_acc == kind else replace(self, control=replace(self.control, imu_acc=kind))
 
     def without(self, channels: list[str]) -> "Measurements":
         """A copy in which ``channels`` count as not logged (NaN, listed in ``missing``): readings
@@ -219,7 +224,8 @@ def fill_derived(m: Measurements, backend: str | None = None) -> tuple[Measureme
         from acn.datasets.odometry import fill_trunk, standing_sink
 
         sink = standing_sink(backend, physics_dt=m.control.physics_dt) if backend else 0.0
-        state, next_state, estimated, height = fill_trunk(state, next_state, linked, dt, m.missing, sink)
+        state, next_state, estimated, height = fill_trunk(state, next_state, linked, dt, m.missing, sink,
+                                                          m.control.imu_acc)
         derived = derived + estimated
     out = Measurements(state, m.action, next_state, m.effort, m.episode, m.frame, m.control, m.info,
                        m.description, [c for c in m.missing if c not in derived], height if no_position else m.height)

@@ -29,10 +29,13 @@ slip:
   the mean velocity those points would have with the trunk origin at rest (joint speeds and
   the trunk's angular velocity, from ``mj_comVel``);
 - velocity, along each run of consecutive samples (``smooth_velocity``): those per-sample
-  estimates fused with the accelerometer (``imu_acc``, the mean specific force over each control
-  step, which gives the velocity's change from one sample to the next) by a robust
-  fixed-interval smoother; feet slip and drag as they lift off, and the accelerometer bridges
-  those samples and flight. Without an accelerometer, a robust smoother of the legs' estimates;
+  estimates fused with the accelerometer (``imu_acc``), which gives the velocity's change from
+  one sample to the next, by a robust fixed-interval smoother; feet slip and drag as they lift
+  off, and the accelerometer bridges those samples and flight. Read as the mean specific force
+  over each control step (the schema's), it gives that change exactly; read at each sample's
+  instant (``SimConfig.imu_acc`` "instant", MuJoCo's sensor), by the trapezoid rule over the
+  step's two ends, which misses what a landing foot does between them. Without an
+  accelerometer, a robust smoother of the legs' estimates;
 - ``base_pos_x``, ``base_pos_y``: the world-frame velocity integrated along each episode from 0
   (on flat ground where the robot stands carries no dynamics).
 
@@ -41,7 +44,9 @@ trot, height 2.5 / 4.5 mm (estimated on a rigid ground: MuJoCo's feet sink that 
 ``standing_sink`` puts back) and 0.0 / 0.1 mm (PyBullet), velocity 1.6-1.9 /
 2.9-3.0 cm/s (spread 28-38 cm/s); on the logs of ``tests/robot_log.py``, whose random
 controllers scrape the feet along the ground, with sensor noise, height 2-3 / 5-7 mm, velocity
-6-7 / 10-11 cm/s (spread 36-61 cm/s). Estimated channels start the simulator and are never
+6-7 / 10-11 cm/s (spread 36-61 cm/s). With MuJoCo's accelerometer on those logs (an instant:
+``--accelerometer sensor``), velocity 6-7 / 12-13 cm/s without noise and 8 / 14-15 cm/s with it;
+fused as if it were the mean, 7-8 / 15-16 and 9 / 17-18. Estimated channels start the simulator and are never
 compared with a prediction.
 """
 
@@ -289,20 +294,33 @@ def _standing_sink(backend: str, physics_dt: float, timeconst: float, payload: f
     return float(max(-feet.mean(), 0.0))
 
 
+def velocity_change(specific_force: np.ndarray, rot: np.ndarray, dt: float, imu_acc: str = "mean") -> np.ndarray:
+    """(T, 3) the world-frame trunk velocity's change from sample k - 1 to k (row 0 unused), m/s,
+    from the accelerometer's readings ``specific_force`` (T, 3, trunk frame, m/s^2) of a run of
+    consecutive samples, ``rot`` (T, 3, 3) their trunk-to-world rotations: dt x (the world
+    acceleration of sample k) where each reading is the mean over the step up to it ("mean"), the
+    trapezoid rule over the step's two ends where it is read at its instant ("instant")."""
+    world = np.einsum("nij,nj->ni", rot, specific_force) + np.array([0.0, 0.0, -GRAVITY])
+    if imu_acc == "instant":
+        world = 0.5 * (world + np.vstack([world[:1], world[:-1]]))
+    return dt * world
+
+
 def fill_trunk(state: np.ndarray, next_state: np.ndarray, linked: np.ndarray, dt: float, missing: list[str],
-               sink: float = 0.0) -> tuple[np.ndarray, np.ndarray, list[str], EstimatedHeight | None]:
+               sink: float = 0.0, imu_acc: str = "mean") -> tuple[np.ndarray, np.ndarray, list[str],
+                                                                  EstimatedHeight | None]:
     """Copies of ``state`` / ``next_state`` (N, 43; row t + 1 follows row t where ``linked[t + 1]``,
     and then starts from row t's next state) with the missing ``base_pos`` and ``base_linvel``
     channels estimated (module docstring), the names of the channels filled, and how the states'
     estimated heights depend on the sink (None where the height was measured). The joint speeds
-    and angular velocities must be finite; ``sink`` as in ``Odometry.estimate``."""
+    and angular velocities must be finite; ``sink`` as in ``Odometry.estimate``; ``imu_acc``: how
+    the accelerometer reads (``SimConfig.imu_acc``, ``velocity_change``)."""
     odometry = Odometry()
     state, next_state = state.copy(), next_state.copy()
     velocity = [n for n in GROUPS["base_linvel"] if n in missing]
     z = SLICES["base_pos"].start + 2
     axes = [i for i, n in enumerate(GROUPS["base_linvel"]) if n in velocity]
     cols, acc = [SLICES["base_linvel"].start + i for i in axes], SLICES["imu_acc"]
-    gravity = np.array([0.0, 0.0, -GRAVITY])
     has_acc = not np.isnan(state[:, acc]).all()
     if velocity or "base_pos_z" in missing:
         h_now, v_now, share = odometry.estimate(state, sink)
@@ -317,7 +335,7 @@ def fill_trunk(state: np.ndarray, next_state: np.ndarray, linked: np.ndarray, dt
                 samples = np.vstack([state[a:b + 1], next_state[b:b + 1]])
                 rot = rpy_to_matrices(samples[:, SLICES["base_rpy"]])
                 legs = np.einsum("nij,nj->ni", rot, np.vstack([v_now[a:b + 1], v_next[b:b + 1]]))
-                change = dt * (np.einsum("nij,nj->ni", rot, samples[:, acc]) + gravity) if has_acc else None
+                change = velocity_change(samples[:, acc], rot, dt, imu_acc) if has_acc else None
                 body = np.einsum("nji,nj->ni", rot, smooth_velocity(legs, change, dt))
                 state[a:b + 1, cols], next_state[a:b + 1, cols] = body[:-1, axes], body[1:, axes]
     planar = [n for n in ("base_pos_x", "base_pos_y") if n in missing]

@@ -209,11 +209,16 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
     say = progress or (lambda msg, fraction=None: None)
     t0 = time.perf_counter()
     findings = checks.from_measurements(data) if check_data else []
+    given = accelerometer
+    if given is not None:
+        data = data.reading_accelerometer(given.kind)
     problem = prepare(data, model, cfg)
     judge_rows = problem.sample(problem.held_rows, cfg.judge_rows, salt=4)
-    given = accelerometer
     accelerometer = given or read_accelerometer(problem, model, judge_rows)
-    problem.control = replace(problem.control, imu_acc=accelerometer.kind)
+    if accelerometer.kind != problem.control.imu_acc:  # leg odometry fuses the accelerometer as it reads
+        data = data.reading_accelerometer(accelerometer.kind)
+        problem = prepare(data, model, cfg)
+        judge_rows = problem.sample(problem.held_rows, cfg.judge_rows, salt=4)
     say("comparing the model with the measurements")
     before = compare(problem, model, cfg)
     problem.check_horizon = before.check_horizon = informative_horizon(before)
