@@ -1082,3 +1082,19 @@ def test_an_instant_accelerometer_a_model_far_from_the_robot_hides_is_read_again
     assert "the model with the effects added predicts it better" in terminal(d)
     assert [a.name for a in d.added] == ["joint_damping", "armature"] and d.verdict == "effect", d.reason
     assert d.final.error[1]["imu_acc"] < 0.3, d.final.error[1]  # measured 0.18
+
+
+def test_auto_holds_an_effect_s_final_fit_to_the_margins_it_asks_of_the_candidate():
+    """``too_little``: what ``--auto`` asks of the best candidate, and again of its final fit
+    (twelve encoder offsets ranked at 11 % of a springs log's error fitted finally to 2.5 %)."""
+    from acn.models.diagnose.add import too_little
+    from acn.models.diagnose.rank import Judgement
+
+    def judged(after: float) -> Judgement:
+        return Judgement(1.0, after, 1.0 - after, 5.0, True, np.zeros((1, 1)))
+
+    assert too_little(judged(0.975), 0.02, floor_mse=0.49) == "explains only 4.9% of the structured error left"
+    assert too_little(judged(0.97), 0.02, floor_mse=0.9) == ("removes only 3.0% of the one-step error and 2.0% at "
+                                                             "the longest horizon")
+    assert too_little(judged(0.97), 0.10, floor_mse=0.9) == ""  # it shows over the longest horizon
+    assert too_little(judged(0.6), None, floor_mse=0.1) == ""
