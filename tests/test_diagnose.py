@@ -1085,8 +1085,7 @@ def test_an_instant_accelerometer_a_model_far_from_the_robot_hides_is_read_again
 
 
 def test_auto_holds_an_effect_s_final_fit_to_the_margins_it_asks_of_the_candidate():
-    """``too_little``: what ``--auto`` asks of the best candidate, and again of its final fit
-    (twelve encoder offsets ranked at 11 % of a springs log's error fitted finally to 2.5 %)."""
+    """``too_little``: what ``--auto`` asks of the best candidate, and again of its final fit."""
     from acn.models.diagnose.add import too_little
     from acn.models.diagnose.rank import Judgement
 
