@@ -46,8 +46,8 @@ trot, height 2.5 / 4.5 mm (estimated on a rigid ground: MuJoCo's feet sink that 
 controllers scrape the feet along the ground, with sensor noise, height 2-3 / 5-7 mm, velocity
 6-7 / 10-11 cm/s (spread 36-61 cm/s). With MuJoCo's accelerometer on those logs (an instant:
 ``--accelerometer sensor``), velocity 6-7 / 12-13 cm/s without noise and 8 / 14-15 cm/s with it;
-fused as if it were the mean, 7-8 / 15-16 and 9 / 17-18. Estimated channels start the simulator and are never
-compared with a prediction.
+fused as if it were the mean, 7-8 / 15-16 and 9 / 17-18. Estimated channels start the simulator
+and are never compared with a prediction.
 """
 
 from __future__ import annotations

@@ -243,8 +243,9 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
     least ``AUTO_MIN_EXPLAINED`` of what is left above the floor, and removes ``AUTO_MIN_REMOVED``
     of the one-step error or ``AUTO_MIN_LONGER`` of the longest-horizon open-loop error.
 
-    A candidate whose final fit is not added (``final_doubt``, or ``too_little`` on it) is set aside
-    and the next one is tried by the same rules. Returns the added effects and those set aside (name -> why).
+    A candidate whose final fit is not added (``final_doubt``, or ``too_little`` on it) is set
+    aside and the next one is tried by the same rules. Returns the added effects and those set
+    aside (name -> why).
 
     An effect already added comes back as a candidate where the ranking beside the effects added
     after it fits it finer (joint damping shared by all joints, then per joint type once armature
