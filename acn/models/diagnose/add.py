@@ -14,7 +14,8 @@ error at the longest horizon is not added (``rank.one_step_only``), nor one whos
 Then ``revisit`` judges each added effect again beside the others, and ``other_starts`` runs
 the same greedy chain from the next-best first candidates, keeping one that predicts clearly
 better. Once the effects are chosen, ``refine_chain`` refines the fit of those that move the
-start state (encoder offsets) with central differences (``fitting`` module docstring).
+start state (encoder offsets) with central differences (``fitting`` module docstring), where
+that predicts the held-out rows no worse.
 """
 
 from __future__ import annotations
