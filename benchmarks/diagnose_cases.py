@@ -54,7 +54,8 @@ With ``--stance-torque``, the controllers are MPC-style on the same clock: legs 
 With ``--accelerometer sensor``, the logs' accelerometer is MuJoCo's sensor, read at each row's
 instant (``robot_log.LogSpec.accelerometer``), not the schema's mean over the control step; the
 logs are imported without ``--imu-acc``, so the diagnosis judges the reading (each line's
-``imu=``, ``acn.models.diagnose.accelerometer``).
+``imu=``, ``acn.models.diagnose.accelerometer``); ``--imu-acc mean|instant`` states it on import
+instead (as ``acn-import --imu-acc``).
 
 With ``--pairs``, logs with TWO hidden effects instead (``--auto``), one line each and:
 
@@ -210,7 +211,7 @@ def log_spec(args, seed: int, over: dict) -> LogSpec:
 
 def import_config(args) -> ImportConfig:
     return ImportConfig(args.control_hz, 60.0, 1.5, 33.5, action_mode="torque" if args.torque_control else "position",
-                        dt_tolerance=max(0.1, 1.2 * args.jitter))
+                        dt_tolerance=max(0.1, 1.2 * args.jitter), imu_acc=args.imu_acc)
 
 
 def skipped(args, name: str, over: dict) -> bool:
@@ -283,6 +284,8 @@ def main() -> None:
                     help="MPC-style: legs in stance get kp 0 and a torque from the readings, legs in swing the PD")
     ap.add_argument("--accelerometer", choices=("mean", "sensor"), default="mean",
                     help="the logs' accelerometer: the mean over the control step, or MuJoCo's sensor (an instant)")
+    ap.add_argument("--imu-acc", choices=("mean", "instant"), default=None,
+                    help="state the accelerometer's reading on import (default: not stated, the diagnosis judges it)")
     ap.add_argument("--glitches", type=float, default=0.0,
                     help="share of rows with one reading off by robot_log.GLITCH x its noise (a corrupted packet)")
     args = ap.parse_args()
