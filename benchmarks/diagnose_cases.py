@@ -82,6 +82,7 @@ from robot_log import LogSpec, write_log  # noqa: E402
 from acn.datasets.importer import ImportConfig, import_log  # noqa: E402
 from acn.datasets.measurements import load_measurements  # noqa: E402
 from acn.models.diagnose import DiagnoseConfig, diagnose  # noqa: E402
+from acn.toolkit.backends import IMU_ACC_KINDS  # noqa: E402
 from acn.toolkit.effects import Model  # noqa: E402
 from acn.toolkit.state import GROUPS  # noqa: E402
 
@@ -284,7 +285,7 @@ def main() -> None:
                     help="MPC-style: legs in stance get kp 0 and a torque from the readings, legs in swing the PD")
     ap.add_argument("--accelerometer", choices=("mean", "sensor"), default="mean",
                     help="the logs' accelerometer: the mean over the control step, or MuJoCo's sensor (an instant)")
-    ap.add_argument("--imu-acc", choices=("mean", "instant"), default=None,
+    ap.add_argument("--imu-acc", choices=IMU_ACC_KINDS, default=None,
                     help="state the accelerometer's reading on import (default: not stated, the diagnosis judges it)")
     ap.add_argument("--glitches", type=float, default=0.0,
                     help="share of rows with one reading off by robot_log.GLITCH x its noise (a corrupted packet)")
