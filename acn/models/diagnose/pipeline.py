@@ -20,7 +20,8 @@ signs, frames, conventions), and with the model, whether each state is paired wi
 that drove it (``pairing``); findings are listed with the diagnosis and named in the reason,
 since a model compared with inconsistent data explains the inconsistency as physics. What the
 logged accelerometer reads (the mean over the control step, or one instant) is taken from the
-dataset or judged with the model, and judged again under the final model (``accelerometer``).
+dataset, or judged from the log by integrating it against the trunk's velocity, or where that
+does not decide with the model and again under the final model (``accelerometer``).
 
 The noise floor is what ridge regressions on a library of state and action terms cannot
 predict (``noise``) of the model's held-out residual, or of what the best candidates leave,
@@ -277,7 +278,7 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
         for chain in chains:
             chain.steps = [swap.get(id(s), s) for s in chain.steps]
         added = refined
-    if given is None and not accelerometer.stated and added:
+    if given is None and accelerometer.by_model and added:  # the integration's judgement needs no model
         again = replace(read_accelerometer(problem, added[-1].after.model, judge_rows), again=True)
         if again.kind != accelerometer.kind:
             how = "at each instant" if again.kind == "instant" else "as the mean over the control step"

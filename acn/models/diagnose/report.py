@@ -9,7 +9,10 @@ JSON keys (the machine-readable contract):
   (``"mean"`` over the control step, the schema's, or ``"instant"``), ``stated`` (by the dataset; else
   judged), ``instant_share`` and ``instant_better`` (judged: the instant reading's one-step
   accelerometer MSE over the mean one's, and the share of rows it predicts better; null otherwise),
-  ``judged_again`` (judged under the model with the effects added, and the diagnosis run again);
+  ``judged_again`` (judged under the model with the effects added, and the diagnosis run again),
+  ``integration`` (judged: the model-free test, ``gamma`` 0 for the mean and about 1 for instants,
+  its ``stderr``, the ``velocity`` integrated against, ``rows``, and whether it ``decides``; null
+  where it could not run);
 - ``headline_error``: its definition and the value before and after the added effects;
 - ``step``: one diagnosis step, ``control_steps`` and ``seconds`` (``DiagnoseConfig.step_seconds``), and
   ``check_horizon``: the steps of the open-loop check (``compare.informative_horizon``);
