@@ -99,22 +99,28 @@ class Accelerometer:
                  f"by the trapezoid of two instants: gamma {i.gamma:.2f} +- {i.stderr:.2f}, 0 for the mean, 1 for "
                  f"instants): compared so; acn-import --imu-acc instant states it")
         model = "the model with the effects added" if self.again else "the model"
+        i, line = self.integration, ""
         if self.kind == "instant":
-            return (f"the accelerometer reads like a sensor sampled at each row's instant, not the mean over the "
+            line = (f"the accelerometer reads like a sensor sampled at each row's instant, not the mean over the "
                     f"control step (read so, {model} predicts it better in {self.better:.0%} of the rows, with "
                     f"{self.share:.0%} of the mean squared error): compared so; acn-import --imu-acc instant states it")
-        if self.again:
-            return (f"the accelerometer reads as the mean over the control step (the schema's) under the model with "
+        elif self.again:
+            line = (f"the accelerometer reads as the mean over the control step (the schema's) under the model with "
                     f"the effects added (read at each instant, {self.better:.0%} of the rows predicted better, "
                     f"{self.share:.0%} of the mean squared error): compared so; acn-import --imu-acc mean states it")
-        return ""
+        if i is not None and i.velocity == "logged" and i.clear and not i.decides:  # it and the legs' disagree
+            doubt = (f"the logged trunk velocity integrates the accelerometer as {i.kind} readings would (gamma "
+                     f"{i.gamma:.2f} +- {i.stderr:.2f}), the legs' as {i.legs.kind} ones ({i.legs.gamma:.2f} +- "
+                     f"{i.legs.stderr:.2f}): is the logged velocity estimated from this accelerometer? The model "
+                     f"judged the reading ({self.kind})")
+            line = f"{doubt}; {line}" if line else doubt
+        return line
 
     def to_json(self) -> dict:
         i = self.integration
         return {"kind": self.kind, "stated": self.stated, "instant_share": self.share, "instant_better": self.better,
                 "judged_again": self.again,
-                "integration": None if i is None else {"gamma": i.gamma, "stderr": i.stderr, "velocity": i.velocity,
-                                                       "rows": i.rows, "decides": i.decides}}
+                "integration": None if i is None else i.to_json()}
 
 
 @dataclass
@@ -123,44 +129,68 @@ class Integration:
 
     gamma: float
     stderr: float
-    velocity: str    # "logged" or "legs' (estimated)"
+    velocity: str    # "logged" or "legs'" (estimated)
     rows: int
+    legs: "Integration | None" = None  # with a logged velocity: the same test against the legs'
+
+    @property
+    def clear(self) -> bool:
+        """gamma lies ``INTEGRATION_Z`` standard errors or more from 1/2."""
+        return bool(np.isfinite(self.gamma) and abs(self.gamma - 0.5) >= INTEGRATION_Z * self.stderr)
 
     @property
     def decides(self) -> bool:
-        return bool(np.isfinite(self.gamma) and abs(self.gamma - 0.5) >= INTEGRATION_Z * self.stderr)
+        """Clear; from the legs' velocity only for "instant" (its bias leans towards the mean);
+        from a logged one where the legs' does not decide otherwise."""
+        if self.velocity != "logged":
+            return self.clear and self.kind == "instant"
+        return self.clear and not (self.legs is not None and self.legs.decides and self.legs.kind != self.kind)
 
     @property
     def kind(self) -> str:
         return "instant" if self.gamma > 0.5 else "mean"
 
+    def to_json(self) -> dict:
+        return {"gamma": self.gamma, "stderr": self.stderr, "velocity": self.velocity, "rows": self.rows,
+                "decides": self.decides, "legs": None if self.legs is None else self.legs.to_json()}
+
 
 def integration(problem: Problem, seed: int = 0) -> Integration | None:
-    """Fit gamma (module docstring) on ``problem``'s rows (None where the velocity cannot be had)."""
+    """The integration test (module docstring) on ``problem``'s rows, against the logged trunk
+    velocity where it is measured, checked against the legs' (else the legs' alone); None where
+    neither can be had."""
     data = problem.data
     rows = np.arange(len(data))
     if len(rows) > INTEGRATION_ROWS:
         rows = np.sort(np.random.default_rng(seed).choice(rows, INTEGRATION_ROWS, replace=False))
-    state, after = data.state[rows].copy(), data.next_state[rows].copy()
-    velocity = "logged"
+    state, after = data.state[rows], data.next_state[rows]
+    dt = problem.control.control_dt
+    legs = None
+    needed = np.r_[SLICES["base_rpy"], SLICES["joint_pos"], SLICES["joint_vel"], SLICES["base_angvel"]]
+    fine = np.isfinite(state[:, needed]).all(1) & np.isfinite(after[:, needed]).all(1)
+    if fine.sum() >= 8:
+        odometry = Odometry()  # stance feet at rest: the accelerometer is not in it
+        legs = fit_gamma(odometry.estimate(state[fine])[1], odometry.estimate(after[fine])[1],
+                         state[fine], after[fine], rows[fine], dt, "legs'")
     if set(GROUPS["base_linvel"]) & (set(problem.derived) | set(data.missing)):
-        needed = np.r_[SLICES["base_rpy"], SLICES["joint_pos"], SLICES["joint_vel"], SLICES["base_angvel"]]
-        fine = np.isfinite(state[:, needed]).all(1) & np.isfinite(after[:, needed]).all(1)
-        if fine.sum() < 8:
-            return None
-        state, after, rows = state[fine], after[fine], rows[fine]
-        odometry = Odometry()
-        state[:, SLICES["base_linvel"]] = odometry.estimate(state)[1]   # stance feet at rest: no accelerometer in it
-        after[:, SLICES["base_linvel"]] = odometry.estimate(after)[1]
-        velocity = "legs' (estimated)"
+        return legs
+    logged = fit_gamma(state[:, SLICES["base_linvel"]], after[:, SLICES["base_linvel"]], state, after, rows, dt,
+                       "logged")
+    if logged is None:
+        return legs
+    return replace(logged, legs=legs)
 
-    def world(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+
+def fit_gamma(velocity: np.ndarray, next_velocity: np.ndarray, state: np.ndarray, after: np.ndarray,
+              rows: np.ndarray, dt: float, source: str) -> Integration | None:
+    """gamma of the rows ``rows`` (their states and next states, trunk-frame velocities at each,
+    m/s) by a Huber regression with a Newey-West standard error; None without 8 usable rows."""
+    def world(s: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         rot = rpy_to_matrices(s[:, SLICES["base_rpy"]])
-        return (np.einsum("nij,nj->ni", rot, s[:, SLICES["base_linvel"]]),
+        return (np.einsum("nij,nj->ni", rot, v),
                 np.einsum("nij,nj->ni", rot, s[:, SLICES["imu_acc"]]) - np.array([0.0, 0.0, GRAVITY]))
 
-    (v0, a0), (v1, a1) = world(state), world(after)
-    dt = problem.control.control_dt
+    (v0, a0), (v1, a1) = world(state, velocity), world(after, next_velocity)
     y, h = v1 - v0 - dt * a1, 0.5 * dt * (a0 - a1)    # (R, 3) each
     ok = np.isfinite(y).all(1) & np.isfinite(h).all(1)
     y, h, rows = y[ok], h[ok], rows[ok]
@@ -179,7 +209,7 @@ def integration(problem: Problem, seed: int = 0) -> Integration | None:
         near = rows[lag:] == rows[:-lag] + lag
         var += 2.0 * (1.0 - lag / 5.0) * float(np.sum(score[lag:][near] * score[:-lag][near]))
     stderr = float(np.sqrt(max(var, 0.0)) / np.sum(w * h * h))
-    return Integration(gamma, stderr, velocity, int(len(y)))
+    return Integration(gamma, stderr, source, int(len(y)))
 
 
 def read_accelerometer(problem: Problem, model: Model, rows: np.ndarray) -> Accelerometer:
