@@ -15,18 +15,25 @@ trapezoid of the step's two instant readings. So per row and world axis,
 
     v_(t+1) - v_t - dt a_(t+1)  =  gamma  dt (a_t - a_(t+1)) / 2  +  noise     (a: R imu_acc - g)
 
-has gamma = 0 for a mean reading and about 1 for an instant one. It is fitted by a Huber
-regression with a heteroscedasticity- and autocorrelation-consistent standard error; the
-velocity is the logged one where it is measured (motion capture, or the robot's own estimate),
-else the legs' per-sample estimate (``Odometry.estimate``: stance feet at rest, which does not
-use the accelerometer; not the fused velocity, which assumes a reading). Where gamma lies clearly
-on one side of 1/2 (``INTEGRATION_Z`` standard errors) it decides. Measured on the logs of
-``benchmarks/diagnose_cases.py`` (26 logs of the first and ``--other`` sets, each written with
-the mean and with MuJoCo's sensor, typical and twice typical noise, 4 x 10 s): with the logged
-velocity gamma is -0.11-0.15 for the mean reading and 0.79-1.12 for the sensor, every one
-decided right (|z| 4.5-34); from the legs, -0.46-0.39 and 0.38-1.16 (slipping and sinking feet
-bias it), 47 decided right, 5 undecided (|z| < 3: soft ground, armature, pace with the sensor),
-none wrong.
+has gamma = 0 for a mean reading and about 1 for an instant one (less where a landing foot acts
+between two samples). It is fitted by a Huber regression with a Newey-West standard error over
+consecutive rows, against:
+
+- the LOGGED velocity where it is measured (motion capture, or the robot's own estimate). It
+  decides where gamma lies ``INTEGRATION_Z`` standard errors or more from 1/2. Measured on the
+  logs of ``benchmarks/diagnose_cases.py`` (the 15 of the first set at typical noise and the 11
+  of ``--other`` at twice typical, 4 x 10 s, each written with the mean and with MuJoCo's
+  sensor): -0.11 to 0.15 for the mean reading, 0.79 to 1.12 for the sensor, all 52 decided
+  right (|z| 4.5 to 35). A velocity the robot's estimator integrated from this accelerometer
+  integrates it as that estimator does, not as the sensor reads; so where the legs' velocity
+  (below) clearly says otherwise, the model judges instead and the report says why;
+- else the LEGS' per-sample velocity (``Odometry.estimate``: stance feet at rest; the
+  accelerometer is not in it, unlike the fused odometry, which assumes a reading). It is biased
+  where feet land, sink and slip, mostly towards the mean reading: on the same logs without
+  motion capture -0.46 to 0.39 for the mean reading and 0.38 to 1.16 for the sensor, and 0.39 +-
+  0.02 on a 2 x 10 s pace log with the sensor. So from the legs only a clear "instant"
+  decides: 22 of the 26 sensor logs (undecided: armature, armature 0.01, soft ground, pace);
+  the rest goes to the model.
 
 Where the integration does not decide (a log without a usable velocity, a 200 Hz log whose two
 readings differ by less than the noise), the model decides: it re-simulates its one step from

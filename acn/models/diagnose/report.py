@@ -11,7 +11,8 @@ JSON keys (the machine-readable contract):
   accelerometer MSE over the mean one's, and the share of rows it predicts better; null otherwise),
   ``judged_again`` (judged under the model with the effects added, and the diagnosis run again),
   ``integration`` (judged: the model-free test, ``gamma`` 0 for the mean and about 1 for instants,
-  its ``stderr``, the ``velocity`` integrated against, ``rows``, and whether it ``decides``; null
+  its ``stderr``, the ``velocity`` integrated against (``"logged"`` or ``"legs'"``), ``rows``, whether
+  it ``decides``, and with a logged velocity the same test against the ``legs``' velocity; null
   where it could not run);
 - ``headline_error``: its definition and the value before and after the added effects;
 - ``step``: one diagnosis step, ``control_steps`` and ``seconds`` (``DiagnoseConfig.step_seconds``), and
