@@ -173,7 +173,8 @@ class Odometry:
         return height, np.einsum("nji,nj->ni", trunk.reshape(n, 3, 3), world), share
 
 
-def smooth_velocity(legs: np.ndarray, change: np.ndarray | None, dt: float) -> np.ndarray:
+def smooth_velocity(legs: np.ndarray, change: np.ndarray | None, dt: float,
+                    spread: np.ndarray | None = None) -> np.ndarray:
     """(T, 3) world-frame trunk velocities of one run of consecutive samples, m/s, from the legs'
     per-sample estimates ``legs`` (T, 3) and, where the accelerometer is logged, the measured
     change from sample k - 1 to k, ``change`` (T, 3; row 0 unused): per axis, the v minimising
@@ -197,16 +198,18 @@ def smooth_velocity(legs: np.ndarray, change: np.ndarray | None, dt: float) -> n
             u, d = np.zeros(n), np.diff(y)
             scale = 1.4826 * np.median(np.abs(d - np.median(d))) + 1e-12
             d = np.clip(d - np.median(d), -3 * scale, 3 * scale)
-            q = max(np.mean(d * d) + 2 * np.mean(d[1:] * d[:-1]), 1e-4 * scale ** 2)
+            q = np.full(n, max(np.mean(d * d) + 2 * np.mean(d[1:] * d[:-1]), 1e-4 * scale ** 2))
         else:
             u = np.nan_to_num(change[:, axis])
-            q = (dt * ACCELEROMETER_NOISE) ** 2
+            q = np.full(n, (dt * ACCELEROMETER_NOISE) ** 2)
+            if spread is not None:
+                q = q + np.nan_to_num(spread[:, axis]) ** 2
         w, r = np.ones(n), LEG_NOISE ** 2
         for _ in range(4):
             bands = np.zeros((3, n))
-            bands[0, 1:] = bands[2, :-1] = -1.0 / q
-            bands[1] = w / r + np.r_[1.0, np.full(n - 2, 2.0), 1.0] / q
-            rhs = w * y / r + (np.r_[0.0, u[1:]] - np.r_[u[1:], 0.0]) / q
+            bands[0, 1:] = bands[2, :-1] = -1.0 / q[1:]
+            bands[1] = w / r + np.r_[0.0, 1.0 / q[1:]] + np.r_[1.0 / q[1:], 0.0]
+            rhs = w * y / r + np.r_[0.0, u[1:] / q[1:]] - np.r_[u[1:] / q[1:], 0.0]
             v = solve_banded((1, 1), bands, rhs)
             e = y - v
             sigma = max(1.4826 * np.median(np.abs(e)), LEG_NOISE_FLOOR)
@@ -306,6 +309,19 @@ def velocity_change(specific_force: np.ndarray, rot: np.ndarray, dt: float, imu_
     return dt * world
 
 
+def change_spread(specific_force: np.ndarray, rot: np.ndarray, dt: float, imu_acc: str = "mean") -> np.ndarray:
+    """(T, 3) the standard deviation of ``velocity_change``'s error beyond the sensor's noise, m/s:
+    0 for the mean reading (exact); for an instant one, the trapezoid's error where the
+    acceleration switches from one sample's value to the next's at a uniformly distributed
+    moment of the step, dt |a_k - a_(k-1)| / sqrt(12) (a landing foot between two samples)."""
+    if imu_acc != "instant":
+        return np.zeros_like(specific_force)
+    world = np.einsum("nij,nj->ni", rot, specific_force)
+    import os
+    c = float(os.environ.get("SPREAD", "1.0"))
+    return c * dt * np.abs(world - np.vstack([world[:1], world[:-1]])) / np.sqrt(12.0)
+
+
 def fill_trunk(state: np.ndarray, next_state: np.ndarray, linked: np.ndarray, dt: float, missing: list[str],
                sink: float = 0.0, imu_acc: str = "mean") -> tuple[np.ndarray, np.ndarray, list[str],
                                                                   EstimatedHeight | None]:
@@ -336,7 +352,8 @@ def fill_trunk(state: np.ndarray, next_state: np.ndarray, linked: np.ndarray, dt
                 rot = rpy_to_matrices(samples[:, SLICES["base_rpy"]])
                 legs = np.einsum("nij,nj->ni", rot, np.vstack([v_now[a:b + 1], v_next[b:b + 1]]))
                 change = velocity_change(samples[:, acc], rot, dt, imu_acc) if has_acc else None
-                body = np.einsum("nji,nj->ni", rot, smooth_velocity(legs, change, dt))
+                spread = change_spread(samples[:, acc], rot, dt, imu_acc) if has_acc else None
+                body = np.einsum("nji,nj->ni", rot, smooth_velocity(legs, change, dt, spread))
                 state[a:b + 1, cols], next_state[a:b + 1, cols] = body[:-1, axes], body[1:, axes]
     planar = [n for n in ("base_pos_x", "base_pos_y") if n in missing]
     if planar:
