@@ -68,7 +68,7 @@ def main() -> None:
                     help="the logs' accelerometer: the mean over the control step, or MuJoCo's sensor (an instant)")
     args = ap.parse_args()
     if args.raw:
-        odometry.smooth_velocity = lambda legs, change, dt: legs.copy()
+        odometry.smooth_velocity = lambda legs, change, dt, spread=None: legs.copy()
     from acn.datasets.record import record
     from acn.toolkit.collector import CollectConfig
 

@@ -34,7 +34,9 @@ slip:
   off, and the accelerometer bridges those samples and flight. Read as the mean specific force
   over each control step (the schema's), it gives that change exactly; read at each sample's
   instant (``SimConfig.imu_acc`` "instant", MuJoCo's sensor), by the trapezoid rule over the
-  step's two ends, which misses what a landing foot does between them. Without an
+  step's two ends, which misses what a landing foot does between them: so that step's change
+  is trusted less, by the trapezoid's error where the acceleration switches between the two
+  samples' values at a uniformly distributed moment (``change_spread``). Without an
   accelerometer, a robust smoother of the legs' estimates;
 - ``base_pos_x``, ``base_pos_y``: the world-frame velocity integrated along each episode from 0
   (on flat ground where the robot stands carries no dynamics).
@@ -45,8 +47,10 @@ trot, height 2.5 / 4.5 mm (estimated on a rigid ground: MuJoCo's feet sink that 
 2.9-3.0 cm/s (spread 28-38 cm/s); on the logs of ``tests/robot_log.py``, whose random
 controllers scrape the feet along the ground, with sensor noise, height 2-3 / 5-7 mm, velocity
 6-7 / 10-11 cm/s (spread 36-61 cm/s). With MuJoCo's accelerometer on those logs (an instant:
-``--accelerometer sensor``), velocity 6-7 / 12-13 cm/s without noise and 8 / 14-15 cm/s with it;
-fused as if it were the mean, 7-8 / 15-16 and 9 / 17-18. Estimated channels start the simulator
+``--accelerometer sensor``), velocity 5.7-6.5 / 9.6-13.9 cm/s without noise and 7.5-8.3 /
+12.5-15.5 cm/s with it (sines-pace; without ``change_spread`` 6.3-6.7 / 11.5-12.6 and 8.1-8.2 /
+14.4-15.2: the sines better, the pace's tail 1.3 and 0.3 cm/s worse); fused as if it were the
+mean, 7-8 / 15-16 and 9 / 17-18. Estimated channels start the simulator
 and are never compared with a prediction.
 """
 
@@ -182,10 +186,12 @@ def smooth_velocity(legs: np.ndarray, change: np.ndarray | None, dt: float,
         sum_k (v_k - v_(k-1) - change_k)^2 / q  +  sum_k w_k (legs_k - v_k)^2 / r
 
     (a tridiagonal system: the fixed-interval Kalman smoother of a random walk driven by the
-    accelerometer). q = (dt ACCELEROMETER_NOISE)^2; without an accelerometer the walk is driven
-    by the trunk's unmeasured acceleration, and q comes from the legs' own changes d (variance
-    q + 2 r, lag-one covariance -r, clipped at 3 robust standard deviations). A slipping foot gives a leg estimate far from the rest, so w_k are Huber weights of
-    the residual (1.5 robust standard deviations) and r its robust variance, refitted four times."""
+    accelerometer). q = (dt ACCELEROMETER_NOISE)^2, plus ``spread`` (T, 3; m/s, row 0 unused)
+    squared where the change is known less well (``change_spread``); without an accelerometer the
+    walk is driven by the trunk's unmeasured acceleration, and q comes from the legs' own changes d
+    (variance q + 2 r, lag-one covariance -r, clipped at 3 robust standard deviations). A slipping
+    foot gives a leg estimate far from the rest, so w_k are Huber weights of the residual (1.5
+    robust standard deviations) and r its robust variance, refitted four times."""
     from scipy.linalg import solve_banded
 
     n = len(legs)
@@ -317,9 +323,7 @@ def change_spread(specific_force: np.ndarray, rot: np.ndarray, dt: float, imu_ac
     if imu_acc != "instant":
         return np.zeros_like(specific_force)
     world = np.einsum("nij,nj->ni", rot, specific_force)
-    import os
-    c = float(os.environ.get("SPREAD", "1.0"))
-    return c * dt * np.abs(world - np.vstack([world[:1], world[:-1]])) / np.sqrt(12.0)
+    return dt * np.abs(world - np.vstack([world[:1], world[:-1]])) / np.sqrt(12.0)
 
 
 def fill_trunk(state: np.ndarray, next_state: np.ndarray, linked: np.ndarray, dt: float, missing: list[str],
