@@ -1020,17 +1020,16 @@ def test_a_log_simulated_at_a_coarser_physics_rate_is_named_and_right_when_impor
 
 
 def test_an_accelerometer_read_at_each_instant_is_recognised_and_compared_so(tmp_path, acn):
-    """A log whose accelerometer is MuJoCo's sensor (read at each row's instant, not the schema's
-    mean over the control step; the pace gait, whose feet land hard) is recognised from the log
-    without a model: integrated against the logged trunk velocity, it gives the velocity's change
-    by the trapezoid of two instants (gamma near 1), a mean reading by dt x itself (gamma near 0;
-    also against the legs' velocity without motion capture, where the model then judges). Where
-    sensor noise leaves the
-    integration undecided the model judges: the instant reading predicts better in most rows
-    (measured: 81 %, 49 % of the error). A dataset that states its reading (acn-import --imu-acc)
-    is taken at its word. Read so, the model with the hidden damping predicts the accelerometer
-    within a few per cent; read as the mean, it cannot (measured: 0.022 against 0.64 after the
-    damping is added, noise-free)."""
+    """A log whose accelerometer is MuJoCo's sensor (read at each row's instant, not the
+    schema's mean over the control step; the pace gait, whose feet land hard) is recognised from
+    the log without a model: integrated against the logged trunk velocity, it gives the
+    velocity's change by the trapezoid of two instants (gamma near 1), a mean reading by dt x
+    itself (gamma near 0; also against the legs' velocity without motion capture, where the
+    model then judges). Where sensor noise leaves the integration undecided the model judges:
+    the instant reading predicts better in most rows (measured: 81 %, 49 % of the error). A
+    dataset that states its reading (acn-import --imu-acc) is taken at its word. Read so, the
+    model with the hidden damping predicts the accelerometer within a few per cent; read as the
+    mean, it cannot (measured: 0.022 against 0.64 after the damping is added, noise-free)."""
     from acn.models.diagnose.accelerometer import predicted_better, read_accelerometer
 
     control = ["--control-hz", "50", "--kp", "60", "--kd", "1.5", "--torque-limit", "33.5"]
