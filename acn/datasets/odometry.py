@@ -50,8 +50,8 @@ controllers scrape the feet along the ground, with sensor noise, height 2-3 / 5-
 ``--accelerometer sensor``), velocity 5.7-6.5 / 9.6-13.9 cm/s without noise and 7.5-8.3 /
 12.5-15.5 cm/s with it (sines-pace; without ``change_spread`` 6.3-6.7 / 11.5-12.6 and 8.1-8.2 /
 14.4-15.2: the sines better, the pace's tail 1.3 and 0.3 cm/s worse); fused as if it were the
-mean, 7-8 / 15-16 and 9 / 17-18. Estimated channels start the simulator
-and are never compared with a prediction.
+mean, 7-8 / 15-16 and 9 / 17-18. Estimated channels start the simulator and are never compared
+with a prediction.
 """
 
 from __future__ import annotations
