@@ -303,13 +303,19 @@ def _standing_sink(backend: str, physics_dt: float, timeconst: float, payload: f
     return float(max(-feet.mean(), 0.0))
 
 
+def world_acceleration(specific_force: np.ndarray, rot: np.ndarray) -> np.ndarray:
+    """(T, 3) the trunk's world-frame acceleration, m/s^2, from accelerometer readings
+    ``specific_force`` (T, 3, trunk frame, gravity included) and trunk-to-world rotations ``rot``."""
+    return np.einsum("nij,nj->ni", rot, specific_force) + np.array([0.0, 0.0, -GRAVITY])
+
+
 def velocity_change(specific_force: np.ndarray, rot: np.ndarray, dt: float, imu_acc: str = "mean") -> np.ndarray:
     """(T, 3) the world-frame trunk velocity's change from sample k - 1 to k (row 0 unused), m/s,
     from the accelerometer's readings ``specific_force`` (T, 3, trunk frame, m/s^2) of a run of
     consecutive samples, ``rot`` (T, 3, 3) their trunk-to-world rotations: dt x (the world
     acceleration of sample k) where each reading is the mean over the step up to it ("mean"), the
     trapezoid rule over the step's two ends where it is read at its instant ("instant")."""
-    world = np.einsum("nij,nj->ni", rot, specific_force) + np.array([0.0, 0.0, -GRAVITY])
+    world = world_acceleration(specific_force, rot)
     if imu_acc == "instant":
         world = 0.5 * (world + np.vstack([world[:1], world[:-1]]))
     return dt * world
@@ -322,7 +328,7 @@ def change_spread(specific_force: np.ndarray, rot: np.ndarray, dt: float, imu_ac
     moment of the step, dt |a_k - a_(k-1)| / sqrt(12) (a landing foot between two samples)."""
     if imu_acc != "instant":
         return np.zeros_like(specific_force)
-    world = np.einsum("nij,nj->ni", rot, specific_force)
+    world = world_acceleration(specific_force, rot)
     return dt * np.abs(world - np.vstack([world[:1], world[:-1]])) / np.sqrt(12.0)
 
 

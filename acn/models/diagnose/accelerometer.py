@@ -63,11 +63,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from acn.datasets.odometry import Odometry
+from acn.datasets.odometry import Odometry, world_acceleration
 from acn.models.diagnose.problem import Problem
 from acn.toolkit.backends import IMU_ACC_KINDS
 from acn.toolkit.effects import Model
-from acn.toolkit.robot import GRAVITY
 from acn.toolkit.rotations import rpy_to_matrices
 from acn.toolkit.state import GROUPS, SLICES
 
@@ -194,8 +193,7 @@ def fit_gamma(velocity: np.ndarray, next_velocity: np.ndarray, state: np.ndarray
     m/s) by a Huber regression with a Newey-West standard error; None without 8 usable rows."""
     def world(s: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         rot = rpy_to_matrices(s[:, SLICES["base_rpy"]])
-        return (np.einsum("nij,nj->ni", rot, v),
-                np.einsum("nij,nj->ni", rot, s[:, SLICES["imu_acc"]]) - np.array([0.0, 0.0, GRAVITY]))
+        return np.einsum("nij,nj->ni", rot, v), world_acceleration(s[:, SLICES["imu_acc"]], rot)
 
     (v0, a0), (v1, a1) = world(state, velocity), world(after, next_velocity)
     y, h = v1 - v0 - dt * a1, 0.5 * dt * (a0 - a1)    # (R, 3) each
