@@ -41,11 +41,10 @@ SETS = {"first": (cases.CASES, 100, 1.0), "other": (cases.OTHER, 700, 2.0)}  # c
 
 
 def recording(no_mocap: bool, accelerometer: str, noise: float) -> argparse.Namespace:
-    """The recording options ``diagnose_cases.log_spec`` and ``import_config`` read."""
-    return argparse.Namespace(seconds=10.0, episodes=4, noise=noise, feedback=0.0, no_mocap=no_mocap,
-                              no_contacts=False, control_hz=50, torque_control=False, stale=0.0, glitches=0.0,
-                              jitter=0.0, velocity_filter=0.0, feedforward=False, stance_gains=None,
-                              stance_torque=False, accelerometer=accelerometer, imu_acc=None)
+    """The recording options ``diagnose_cases.log_spec`` and ``import_config`` read: that
+    benchmark's own command line, defaults and all."""
+    return cases.parser().parse_args(["--noise", str(noise), "--accelerometer", accelerometer]
+                                     + (["--no-mocap"] if no_mocap else []))
 
 
 def main() -> None:

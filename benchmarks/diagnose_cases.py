@@ -256,7 +256,9 @@ def pairs(args, root: Path) -> None:
     print(f"pairs_within_15pct={within[0]}/{within[1]}")
 
 
-def main() -> None:
+def parser() -> argparse.ArgumentParser:
+    """The command line: the cases to run and how their logs are recorded (``log_spec``,
+    ``import_config``)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--noise", type=float, default=1.0, help="sensor noise, multiple of robot_log.NOISE")
     ap.add_argument("--seconds", type=float, default=10.0)
@@ -289,6 +291,11 @@ def main() -> None:
                     help="state the accelerometer's reading on import (default: not stated, the diagnosis judges it)")
     ap.add_argument("--glitches", type=float, default=0.0,
                     help="share of rows with one reading off by robot_log.GLITCH x its noise (a corrupted packet)")
+    return ap
+
+
+def main() -> None:
+    ap = parser()
     args = ap.parse_args()
     if (args.feedforward or args.stance_gains or args.stance_torque) and args.torque_control:
         ap.error("--feedforward, --stance-gains and --stance-torque complete a position target; --torque-control "
