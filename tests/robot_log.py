@@ -31,6 +31,7 @@ class LogSpec:
     episodes: int = 2
     seed: int = 0
     controller: str = "sines"            # "sines": random smooth joint targets; "pace": lateral-pair gait
+    pace_speed: float = 1.0              # the pace's stride frequency and swing amplitudes times this (faster legs)
     control_hz: int = 50
     physics_hz: int = 1000
     kp: float | tuple[float, ...] = 60.0  # N m/rad: every joint, or 12 in JOINT_NAMES order
@@ -40,6 +41,9 @@ class LogSpec:
     strength: float | np.ndarray = 1.0   # torque produced / commanded: every joint, or 12 in JOINT_NAMES order
     gains: tuple[float, float] = (1.0, 1.0)  # the PD really runs with (kp, kd) times these
     deadband: float = 0.0                # rad, total width of a dead band on the PD error
+    dc_motor: tuple[float, float] | None = None  # (saturation N m, no-load speed rad/s): each motor's torque
+    # bounded by its torque-speed line, [clip(sat (-1 - qd / w), -limit, 0), clip(sat (1 - qd / w), 0, limit)]
+    # (Isaac Lab's DCMotor), before the strength
     encoder_offset: np.ndarray | None = None  # (12,) rad, the PD and the log read q + offset
     spec_edit: Callable[[mujoco.MjSpec], None] | None = None
     marker: tuple[float, ...] | None = None  # (x, y, z) m [, roll, pitch rad]: the trunk logged as a
@@ -102,16 +106,20 @@ def _targets(s: LogSpec, rng: np.random.Generator):
         phase = rng.uniform(0, 2 * np.pi, (3, 12))
         return lambda t: STANCE + (amp * np.sin(2 * np.pi * freq * t + phase)).sum(0)
     if s.controller == "pace":  # left and right pairs alternate (acn's trot uses diagonals)
-        f = rng.uniform(1.6, 2.2)
+        f, g = rng.uniform(1.6, 2.2) * s.pace_speed, s.pace_speed
 
         def pace(t: float) -> np.ndarray:
             out = STANCE.copy()
             for leg, off in ((0, 0.0), (2, 0.0), (1, np.pi), (3, np.pi)):  # FR+RR vs FL+RL
                 ph = 2 * np.pi * f * t + off
-                out[3 * leg + 1] += 0.25 * np.cos(ph)
-                out[3 * leg + 2] -= 0.5 * max(np.sin(ph), 0.0)
+                out[3 * leg + 1] += 0.25 * g * np.cos(ph)
+                out[3 * leg + 2] -= 0.5 * g * max(np.sin(ph), 0.0)
             return out
         return pace
+    if s.controller == "hop":  # every leg folds and pushes together: the trunk bounces, motors near their limits
+        f = rng.uniform(2.0, 2.6) * s.pace_speed
+        fold = np.tile([0.0, 0.35, -0.7], 4) * s.pace_speed
+        return lambda t: STANCE + fold * 0.5 * (1.0 - np.cos(2 * np.pi * f * t))
     raise ValueError(s.controller)
 
 
@@ -269,6 +277,10 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
                         err = np.sign(err) * np.maximum(np.abs(err) - s.deadband / 2, 0.0)
                     tau = np.clip(s.gains[0] * cmd_kp * err + s.gains[1] * cmd_kd * (cmd_vel - qd) + cmd_ff,
                                   -s.torque_limit, s.torque_limit)
+                if s.dc_motor:
+                    sat, no_load = s.dc_motor
+                    tau = np.clip(tau, np.clip(sat * (-1.0 - qd / no_load), -s.torque_limit, 0.0),
+                                  np.clip(sat * (1.0 - qd / no_load), 0.0, s.torque_limit))
                 d.ctrl[:] = s.strength * tau
                 mujoco.mj_step(m, d)
                 qd_logged += (d.qvel[dadr] - qd_logged) / (1.0 + s.velocity_filter * s.physics_hz)

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from acn.errors import UserError
+from acn.toolkit.actuation import Actuation
 from acn.toolkit.backends import SimConfig, make_backend
 from acn.toolkit.collector import CollectConfig, initial_state
 from acn.toolkit.effects import CATALOGUE, EFFECT_NAMES, Model, describe_catalogue, get_effect
@@ -21,6 +22,7 @@ CONTRACT = {
     "motor_strength": ["scale"], "torque_limit": ["value"], "pd_gains": ["kp_scale", "kd_scale"],
     "payload": ["mass", "com_x", "com_y", "com_z"], "ground_friction": ["value"], "encoder_offset": ["value"],
     "backlash": ["value"], "base_frame_offset": ["x", "y", "z", "roll", "pitch"], "ground_softness": ["timeconst"],
+    "torque_speed": ["slope"],
 }
 
 
@@ -53,6 +55,8 @@ def test_every_effect_changes_both_simulators(name):
         values = {"value": np.full(12, 8.0)}  # the trot's first steps stay below the realistic limits
     if name == "ground_friction":
         values = {"value": 0.05}
+    if name == "torque_speed":
+        values = {"slope": np.full(12, 8.0)}  # the trot's first steps: torques far below the limit
     params = ModelParams()
     effect.apply(params, values)
     for backend in ("mujoco", "pybullet"):
@@ -92,16 +96,18 @@ def test_bad_model_files_are_one_line_errors(tmp_path, bad, message):
     assert "\n" not in str(e.value)
 
 
-@pytest.mark.parametrize("backend, gains, backlash, imu", [
-    ("mujoco", False, 0.02, "instant"), ("pybullet", False, 0.02, "mean"), ("mujoco", True, 0.0, "mean"),
-    ("mujoco", True, 0.0, "instant"), ("mujoco", True, 0.02, "mean"), ("pybullet", True, 0.02, "instant")])
-def test_resimulation_reproduces_the_backend_step_by_step(backend, gains, backlash, imu):
+@pytest.mark.parametrize("backend, gains, backlash, imu, slope", [
+    ("mujoco", False, 0.02, "instant", 0.0), ("pybullet", False, 0.02, "mean", 0.0), ("mujoco", True, 0.0, "mean", 0.0),
+    ("mujoco", True, 0.0, "instant", 0.0), ("mujoco", True, 0.02, "mean", 0.0), ("pybullet", True, 0.02, "instant", 0.0),
+    ("mujoco", False, 0.0, "mean", 4.0), ("pybullet", False, 0.0, "mean", 4.0), ("mujoco", True, 0.0, "mean", 4.0)])
+def test_resimulation_reproduces_the_backend_step_by_step(backend, gains, backlash, imu, slope):
     """Batch re-simulation from recorded states (with latency history) equals stepping the backend;
     also with gains that change every step (``hybrid``: MuJoCo's four actuators per joint
-    without a dead band, the law in numpy with one), and with either accelerometer (``imu``)."""
+    without a dead band, the law in numpy with one), with either accelerometer (``imu``), and
+    with a torque-speed line (``slope``, the law in numpy)."""
     params = ModelParams(latency=0.027, encoder_offset=0.03, payload_mass=1.0, payload_com=[0.02, 0.0, 0.01],
                          backlash=backlash, armature=0.01, kp_scale=0.8, kd_scale=1.2, motor_strength=0.9,
-                         base_frame_offset=[0.03, -0.02, 0.05, 0.02, -0.03, 0.04])
+                         base_frame_offset=[0.03, -0.02, 0.05, 0.02, -0.03, 0.04], torque_speed=slope)
     cfg = SimConfig(params=params, hybrid=gains, imu_acc=imu)
     s0, trot = initial_state(CollectConfig(), 1), Trot()
     states, actions, nexts, efforts = [], [], [], []
@@ -130,6 +136,25 @@ def test_resimulation_reproduces_the_backend_step_by_step(backend, gains, backla
     np.testing.assert_allclose(pred.effort[:, 0], efforts[rows], atol=tol * 10)
     np.testing.assert_allclose(chain.state[0, :, :36], nexts[3:12, :36], atol=tol * 10)
     assert np.isnan(pred.state[:, 0, 36:40]).all()  # contacts are readings, not predicted
+
+
+def test_the_torque_speed_line_narrows_the_torque_in_the_direction_of_motion():
+    """Stall torque at the limit, none in the direction of motion at the no-load speed (limit /
+    slope), the full limit when braking (Isaac Lab's ``DCMotor``, saturation at the limit); the
+    law leaves MuJoCo's native actuators in both modes."""
+    qd = np.array([0.0, 5.0, -5.0, 20.0, -20.0, 10.0, 0.0, 5.0, -5.0, 20.0, -20.0, 10.0])
+    q = np.zeros(12)
+    for mode in ("position", "torque"):
+        act = Actuation.from_config(SimConfig(action_mode=mode, params=ModelParams(torque_speed=2.0)))
+        assert not act.native and act.reads_joints
+        lo, hi = act.torque_range(qd)
+        np.testing.assert_allclose(hi[:6], [33.5, 23.5, 33.5, 0.0, 33.5, 13.5])
+        np.testing.assert_allclose(lo[:6], [-33.5, -33.5, -23.5, -33.5, 0.0, -33.5])
+    pushing = act.torque(np.full(12, 30.0), q, qd)  # torque mode: the command clipped to the line
+    np.testing.assert_allclose(pushing[:6], [30.0, 23.5, 30.0, 0.0, 30.0, 13.5])
+    nominal = Actuation.from_config(SimConfig(action_mode="torque"))
+    assert nominal.native and not nominal.reads_joints
+    np.testing.assert_allclose(nominal.torque(np.full(12, 40.0), q, qd), 33.5)
 
 
 def test_both_backends_carry_the_same_payload():

@@ -9,6 +9,11 @@ From the action a_t to the torque on each joint, per physics step (all per joint
 3. **position mode**: ``e = deadband(command - reading, backlash / 2)``,
    ``tau_cmd = clip(kp_scale kp e - kd_scale kd qdot, -limit, limit)``;
    **torque mode**: ``tau_cmd = clip(command, -limit, limit)``;
+   **torque-speed line** (``torque_speed`` k, N m s/rad): the motor's torque in the direction the
+   joint moves falls with its speed, ``tau_cmd`` is clipped to
+   ``[clip(-limit - k qdot, -limit, 0), clip(limit - k qdot, 0, limit)]`` (a DC motor whose back-EMF
+   eats the supply voltage: the stall torque is the limit, the no-load speed limit / k; braking
+   keeps the full limit; Isaac Lab's ``DCMotor`` with its saturation at the limit);
 4. **motor strength**: the joint receives ``strength * tau_cmd``.
 
 **Hybrid (MIT-style) commands** (``SimConfig.hybrid``: gains and a feedforward sent with every
@@ -23,7 +28,7 @@ mean(kp_t), D = mean(kd_t), F = mean(kd_scale kd_t v_t + tau_t) (``commands`` re
 F), 48 columns; the dead band acts on P / G - reading).
 
 With nominal parameters this is exactly ``SimConfig``'s PD law. MuJoCo realises steps 2-4 with
-native actuator parameters when there is no dead band (``Actuation.native``); otherwise, and
+native actuator parameters when there is no dead band and no torque-speed line (``Actuation.native``); otherwise, and
 in PyBullet, ``torque`` is evaluated in Python every physics step. Latency is always realised
 by the command sequence (``commands``), so a re-simulation from a recorded state only needs the
 recorded previous actions.
@@ -72,6 +77,7 @@ class Actuation:
     hybrid: bool = False  # hybrid commands: gains and feedforward come with each target (module docstring)
     kp_scale: np.ndarray | float = 1.0  # multiplies the kp a hybrid command sends (``kp`` above includes it)
     kd_scale: np.ndarray | float = 1.0  # the same for kd, on -qdot and on the velocity target
+    speed_slope: np.ndarray | float = 0.0  # N m s/rad, the torque-speed line's slope (module docstring)
 
     @classmethod
     def from_config(cls, config) -> "Actuation":
@@ -83,7 +89,7 @@ class Actuation:
                    limit=limit * ones, strength=p.motor_strength.copy(), offset=p.encoder_offset.copy(),
                    deadband=p.backlash / 2.0, latency=float(p.latency), physics_dt=config.physics_dt,
                    substeps=config.substeps, hybrid=config.hybrid, kp_scale=p.kp_scale.copy(),
-                   kd_scale=p.kd_scale.copy())
+                   kd_scale=p.kd_scale.copy(), speed_slope=p.torque_speed.copy())
 
     @property
     def command_width(self) -> int:
@@ -92,8 +98,16 @@ class Actuation:
 
     @property
     def native(self) -> bool:
-        """True if MuJoCo's affine actuators can realise the law (no dead band)."""
+        """True if MuJoCo's affine actuators can realise the law (no dead band, no torque-speed line)."""
+        if np.any(np.asarray(self.speed_slope) > 0):
+            return False
         return self.mode == "torque" or not np.any(self.deadband > 0)
+
+    @property
+    def reads_joints(self) -> bool:
+        """True if the torque depends on the joint angle or velocity (position mode, or a
+        torque-speed line)."""
+        return self.mode == "position" or bool(np.any(np.asarray(self.speed_slope) > 0))
 
     @property
     def history(self) -> int:
@@ -140,8 +154,9 @@ class Actuation:
     def torque(self, command: np.ndarray, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """Joint torque (..., 12), N m, from the command (``commands``) and the TRUE joint angle
         and velocity."""
+        lo, hi = self.torque_range(qd)
         if self.mode == "torque":
-            return self.strength * np.clip(command, -self.limit, self.limit)
+            return self.strength * np.clip(command, lo, hi)
         if self.hybrid:  # kp_t e = P - G reading, with the dead band on e = P / G - reading
             p, g, d, f = np.split(command, 4, axis=-1)
             reading = q + self.offset
@@ -150,8 +165,17 @@ class Actuation:
                 stiff = g * np.sign(e) * np.maximum(np.abs(e) - self.deadband, 0.0)
             else:
                 stiff = p - g * reading
-            return self.strength * np.clip(self.kp_scale * stiff - self.kd_scale * d * qd + f, -self.limit, self.limit)
+            return self.strength * np.clip(self.kp_scale * stiff - self.kd_scale * d * qd + f, lo, hi)
         e = command - (q + self.offset)
         if self.deadband.any():
             e = np.sign(e) * np.maximum(np.abs(e) - self.deadband, 0.0)
-        return self.strength * np.clip(self.kp * e - self.kd * qd, -self.limit, self.limit)
+        return self.strength * np.clip(self.kp * e - self.kd * qd, lo, hi)
+
+    def torque_range(self, qd: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """The commanded torque's bounds (N m) at joint velocity ``qd`` (rad/s): the limit, narrowed
+        in the direction of motion by the torque-speed line (module docstring)."""
+        slope = np.asarray(self.speed_slope)
+        if qd is None or not np.any(slope > 0):
+            return -self.limit, self.limit
+        drop = slope * qd
+        return np.clip(-self.limit - drop, -self.limit, 0.0), np.clip(self.limit - drop, 0.0, self.limit)

@@ -68,7 +68,7 @@ def combine_point_mass(mass: float, com: np.ndarray, inertia: np.ndarray, m_p: f
 
 
 JOINT_FIELDS = ("joint_damping", "joint_friction", "armature", "motor_strength", "torque_limit", "kp_scale",
-                "kd_scale", "encoder_offset", "backlash")
+                "kd_scale", "encoder_offset", "backlash", "torque_speed")
 
 
 def per_joint(value, default: float = 0.0) -> np.ndarray:
@@ -101,7 +101,7 @@ class ModelParams:
     base_frame_offset   the state's reading of the trunk         the same
                         (``acn.toolkit.frames``)
     latency ... backlash  the control law (``acn.toolkit.actuation``): native actuator parameters
-                        in MuJoCo where the law allows, otherwise a torque computed per physics
+    and torque_speed    in MuJoCo where the law allows, otherwise a torque computed per physics
                         step, as in PyBullet
     ==================  =======================================  ===================================
     """
@@ -120,6 +120,8 @@ class ModelParams:
     kd_scale: np.ndarray = field(default_factory=lambda: np.ones(NUM_JOINTS))
     encoder_offset: np.ndarray = field(default_factory=lambda: np.zeros(NUM_JOINTS))  # rad, reading - true angle
     backlash: np.ndarray = field(default_factory=lambda: np.zeros(NUM_JOINTS))        # rad, dead band width
+    torque_speed: np.ndarray = field(default_factory=lambda: np.zeros(NUM_JOINTS))    # N m s/rad: the torque
+    # available in the direction of motion falls by this per rad/s of joint speed (a DC motor's torque-speed line)
     base_frame_offset: np.ndarray = field(default_factory=lambda: np.zeros(6))  # x, y, z m (trunk frame), roll,
     # pitch, yaw rad: the frame the state's trunk channels are read in, relative to the trunk link frame
 

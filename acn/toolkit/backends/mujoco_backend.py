@@ -7,8 +7,9 @@ stepped with ``mj_step`` or re-simulated in batches with ``mujoco.rollout``:
 - position mode: ``tau = s kp (ctrl - q - offset) - s kd qdot`` (gain s kp, affine bias
   (-s kp offset, -s kp, -s kd)), force-limited to +-s limit, with s the motor strength;
 - torque mode: ``tau = s ctrl``, ctrl-limited to +-limit;
-- position mode with a dead band (backlash), which no affine actuator can express: plain
-  motors (``tau = ctrl``), the torque computed by ``Actuation.torque`` every physics step;
+- position mode with a dead band (backlash), or either mode with a torque-speed line
+  (``torque_speed``), which no affine actuator can express: plain motors (``tau = ctrl``), the
+  torque computed by ``Actuation.torque`` every physics step;
 - hybrid commands (``SimConfig.hybrid``): four actuators per joint, whose 48 controls are
   ``Actuation.commands``' (P, G, D, F; F carries the velocity target's term kd_scale kd_t v_t): a
   motor ``s kp_scale P``, an affine gain ``G (-s kp_scale (q + offset))``, one ``D (-s kd_scale
@@ -101,7 +102,7 @@ def build_spec(config: SimConfig) -> mujoco.MjSpec:
             a.gainprm[0] = kp
             a.biastype = mujoco.mjtBias.mjBIAS_AFFINE
             a.biasprm[:3] = [-kp * float(act.offset[k]), -kp, -kd]
-        elif cfg.action_mode == "torque":
+        elif cfg.action_mode == "torque" and act.native:
             a.gainprm[0] = s
             a.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
             a.ctrlrange = [-lim, lim]

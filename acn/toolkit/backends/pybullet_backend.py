@@ -212,9 +212,9 @@ class PyBulletBackend(Backend):
     def _advance(self, commands: np.ndarray) -> np.ndarray:
         r, joints, c, act = self._robot, self._joints, self._client, self.actuation
         total = np.zeros(12)
-        q = qd = None  # torque mode needs no joint reading
+        q = qd = None  # torque mode needs no joint reading (without a torque-speed line)
         for command in commands:
-            if act.mode == "position":
+            if act.reads_joints:
                 q, qd = self._joint_state()
             tau = act.torque(command, q, qd)
             c.setJointMotorControlArray(r, joints, pybullet.TORQUE_CONTROL, forces=tau)

@@ -17,6 +17,9 @@ ground_softness     timeconst s, the foot-ground contact's     0.03 - 0.1 (nomin
                     physics steps MuJoCo clamps it)            stiffer: PyBullet's rigid contact
 encoder_offset      value rad (per joint)                      +-(0.02 - 0.15)
 backlash            value rad, dead band width (per joint)     0.01 - 0.05
+torque_speed        slope N m s/rad: the torque in the          0.5 - 2.5 (A1: 33.5 N m stall,
+                    direction of motion falls by slope x speed  21 rad/s no load: 1.6)
+                    (a DC motor's torque-speed line; per joint)
 base_frame_offset   x, y, z m, roll, pitch rad: the frame the   +-(0.005 - 0.05) m, +-(0.005 - 0.05)
                     trunk is measured in (trunk frame; no yaw:  rad: a marker, a tilted IMU, the
                     flat ground does not see it)               inertial frame PyBullet reports
@@ -145,6 +148,11 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
            (Parameter("value", "rad", 0.0, 0.0, 0.3, per_joint=True, realistic=(0.01, 0.05)),),
            _setter("backlash"), mujoco="motor actuators, the dead-band law computed each physics step",
            pybullet="dead band in the control law"),
+    Effect("torque_speed", "the motors' torque in the direction of motion falls with joint speed (a DC motor's "
+           "torque-speed line: back-EMF against the supply voltage; stall torque the limit, no-load speed limit / slope)",
+           (Parameter("slope", "N m s/rad", 0.0, 0.0, 20.0, per_joint=True, realistic=(0.5, 2.5)),),
+           _setter("torque_speed", "slope"), mujoco="motor actuators, the torque-speed law computed each physics step",
+           pybullet="the control law's torque bounds"),
     Effect("base_frame_offset", "the trunk's pose and velocities are measured in a frame off the trunk's "
            "(a motion-capture body, a tilted IMU, PyBullet's centre of mass and principal axes)",
            (Parameter("x", "m", 0.0, -0.2, 0.2, realistic=(0.005, 0.05), signed=True),
