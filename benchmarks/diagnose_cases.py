@@ -143,10 +143,11 @@ CASES = {
     "ground_friction": ({"spec_edit": _floor(0.3), "controller": "pace"}, "effect", "ground_friction", "value", 0.3),
     "encoder_offset": ({"encoder_offset": OFFSETS}, "effect", "encoder_offset", "value", OFFSETS),
     "backlash": ({"deadband": 0.04}, "effect", "backlash", "value", 0.04),
-    # a DC motor's torque-speed line, the A1's datasheet (33.5 N m stall, 21 rad/s no load): slope 33.5 / 21
-    "torque-speed": ({"dc_motor": (33.5, 21.0), "controller": "hop", "pace_speed": 1.2}, "effect", "torque_speed", "slope", 33.5 / 21.0),
-    "torque-speed 14": ({"dc_motor": (33.5, 14.0), "controller": "hop", "pace_speed": 1.2}, "effect", "torque_speed", "slope", 33.5 / 14.0),
-    "nominal hop": ({"controller": "hop", "pace_speed": 1.2}, "none", None, None, None),
+    # a DC motor's torque-speed line (Isaac Lab's DCMotor: 33.5 N m stall, 14 rad/s no load, slope 2.39) on a
+    # robot that hops, the one controller of these logs that drives the motors fast and hard at once
+    "torque-speed (hop)": ({"dc_motor": (33.5, 14.0), "controller": "hop", "pace_speed": 1.2}, "effect",
+                           "torque_speed", "slope", 33.5 / 14.0),
+    "nominal (hop)": ({"controller": "hop", "pace_speed": 1.2}, "none", None, None, None),
     "springs (outside)": ({"spec_edit": _joints("stiffness", 3.0)}, "unexplained", None, None, None),
     # the trunk logged as a motion-capture body 6 cm above its origin, tilted (a reading, not physics)
     "mocap body": ({"marker": (0.02, -0.015, 0.06, 0.02, -0.03)}, "effect", "base_frame_offset", "z", 0.06),
@@ -171,9 +172,9 @@ OTHER = {
     "floor 0.5 (pace)": ({"spec_edit": _floor(0.5), "controller": "pace"}, "effect", "ground_friction", "value", 0.5),
     "nominal (pace)": ({"controller": "pace"}, "none", None, None, None),
     "torque limit 20": ({"torque_limit": 20.0}, "effect", "torque_limit", "value", 20.0),  # reached in ~4 % of steps
-    # a faster motor on another gait (no load 30 rad/s: slope 1.12)
-    "torque-speed 30 rad/s (pace)": ({"dc_motor": (33.5, 30.0), "controller": "pace"}, "effect", "torque_speed",
-                                     "slope", 33.5 / 30.0),
+    # a faster motor (no load 16 rad/s: slope 2.09) on a gentler hop
+    "torque-speed 16 rad/s (hop)": ({"dc_motor": (33.5, 16.0), "controller": "hop", "pace_speed": 1.1}, "effect",
+                                    "torque_speed", "slope", 33.5 / 16.0),
     # one motor at half strength (a failing driver), the other eleven nominal: a shared strength cancels it
     "weak FR_calf 0.5": ({"strength": WEAK}, "effect", "motor_strength", "scale", WEAK),
 }

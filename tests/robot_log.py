@@ -30,8 +30,9 @@ class LogSpec:
     seconds: float = 4.0
     episodes: int = 2
     seed: int = 0
-    controller: str = "sines"            # "sines": random smooth joint targets; "pace": lateral-pair gait
-    pace_speed: float = 1.0              # the pace's stride frequency and swing amplitudes times this (faster legs)
+    controller: str = "sines"            # "sines": random smooth joint targets; "pace": lateral-pair gait;
+    # "hop": every leg folds and pushes together at 2-2.6 Hz (the trunk leaves the ground)
+    pace_speed: float = 1.0              # the pace's and the hop's frequency and amplitudes times this (faster legs)
     control_hz: int = 50
     physics_hz: int = 1000
     kp: float | tuple[float, ...] = 60.0  # N m/rad: every joint, or 12 in JOINT_NAMES order
