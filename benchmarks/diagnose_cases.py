@@ -143,17 +143,17 @@ CASES = {
     "ground_friction": ({"spec_edit": _floor(0.3), "controller": "pace"}, "effect", "ground_friction", "value", 0.3),
     "encoder_offset": ({"encoder_offset": OFFSETS}, "effect", "encoder_offset", "value", OFFSETS),
     "backlash": ({"deadband": 0.04}, "effect", "backlash", "value", 0.04),
-    # a DC motor's torque-speed line (Isaac Lab's DCMotor: 33.5 N m stall, 14 rad/s no load, slope 2.39) on a
-    # robot that hops, the one controller of these logs that drives the motors fast and hard at once
-    "torque-speed (hop)": ({"dc_motor": (33.5, 14.0), "controller": "hop", "pace_speed": 1.2}, "effect",
-                           "torque_speed", "slope", 33.5 / 14.0),
-    "nominal (hop)": ({"controller": "hop", "pace_speed": 1.2}, "none", None, None, None),
     "springs (outside)": ({"spec_edit": _joints("stiffness", 3.0)}, "unexplained", None, None, None),
     # the trunk logged as a motion-capture body 6 cm above its origin, tilted (a reading, not physics)
     "mocap body": ({"marker": (0.02, -0.015, 0.06, 0.02, -0.03)}, "effect", "base_frame_offset", "z", 0.06),
     # softer ground (the feet sink 11 mm standing instead of 1.3), named ground_friction 1.69 before
     # the catalogue had ground_softness
     "soft ground": ({"spec_edit": _soft_ground(0.05)}, "effect", "ground_softness", "timeconst", 0.05),
+    # a DC motor's torque-speed line (Isaac Lab's DCMotor: 33.5 N m stall, 14 rad/s no load, slope 2.39) on a
+    # robot that hops, the one controller of these logs that drives the motors fast and hard at once
+    "torque-speed (hop)": ({"dc_motor": (33.5, 14.0), "controller": "hop", "pace_speed": 1.2}, "effect",
+                           "torque_speed", "slope", 33.5 / 14.0),
+    "nominal (hop)": ({"controller": "hop", "pace_speed": 1.2}, "none", None, None, None),
 }
 
 
@@ -172,11 +172,11 @@ OTHER = {
     "floor 0.5 (pace)": ({"spec_edit": _floor(0.5), "controller": "pace"}, "effect", "ground_friction", "value", 0.5),
     "nominal (pace)": ({"controller": "pace"}, "none", None, None, None),
     "torque limit 20": ({"torque_limit": 20.0}, "effect", "torque_limit", "value", 20.0),  # reached in ~4 % of steps
+    # one motor at half strength (a failing driver), the other eleven nominal: a shared strength cancels it
+    "weak FR_calf 0.5": ({"strength": WEAK}, "effect", "motor_strength", "scale", WEAK),
     # a faster motor (no load 16 rad/s: slope 2.09) on a gentler hop
     "torque-speed 16 rad/s (hop)": ({"dc_motor": (33.5, 16.0), "controller": "hop", "pace_speed": 1.1}, "effect",
                                     "torque_speed", "slope", 33.5 / 16.0),
-    # one motor at half strength (a failing driver), the other eleven nominal: a shared strength cancels it
-    "weak FR_calf 0.5": ({"strength": WEAK}, "effect", "motor_strength", "scale", WEAK),
 }
 
 
