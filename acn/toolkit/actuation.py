@@ -28,8 +28,9 @@ mean(kp_t), D = mean(kd_t), F = mean(kd_scale kd_t v_t + tau_t) (``commands`` re
 F), 48 columns; the dead band acts on P / G - reading).
 
 With nominal parameters this is exactly ``SimConfig``'s PD law. MuJoCo realises steps 2-4 with
-native actuator parameters when there is no dead band and no torque-speed line (``Actuation.native``); otherwise, and
-in PyBullet, ``torque`` is evaluated in Python every physics step. Latency is always realised
+native actuator parameters when there is no dead band and no torque-speed line
+(``Actuation.native``); otherwise, and in PyBullet, ``torque`` is evaluated in Python every
+physics step. Latency is always realised
 by the command sequence (``commands``), so a re-simulation from a recorded state only needs the
 recorded previous actions.
 """

@@ -149,7 +149,8 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
            _setter("backlash"), mujoco="motor actuators, the dead-band law computed each physics step",
            pybullet="dead band in the control law"),
     Effect("torque_speed", "the motors' torque in the direction of motion falls with joint speed (a DC motor's "
-           "torque-speed line: back-EMF against the supply voltage; stall torque the limit, no-load speed limit / slope)",
+           "torque-speed line: back-EMF against the supply voltage; stall torque the limit, no-load speed "
+           "limit / slope)",
            (Parameter("slope", "N m s/rad", 0.0, 0.0, 20.0, per_joint=True, realistic=(0.5, 2.5)),),
            _setter("torque_speed", "slope"), mujoco="motor actuators, the torque-speed law computed each physics step",
            pybullet="the control law's torque bounds"),
