@@ -151,9 +151,9 @@ CASES = {
     "soft ground": ({"spec_edit": _soft_ground(0.05)}, "effect", "ground_softness", "timeconst", 0.05),
     # a DC motor's torque-speed line (Isaac Lab's DCMotor: 33.5 N m stall, 14 rad/s no load, slope 2.39) on a
     # robot that hops, the one controller of these logs that drives the motors fast and hard at once
-    "torque-speed (hop)": ({"dc_motor": (33.5, 14.0), "controller": "hop", "pace_speed": 1.2}, "effect",
+    "torque-speed (hop)": ({"dc_motor": (33.5, 14.0), "controller": "hop", "gait_speed": 1.2}, "effect",
                            "torque_speed", "slope", 33.5 / 14.0),
-    "nominal (hop)": ({"controller": "hop", "pace_speed": 1.2}, "none", None, None, None),
+    "nominal (hop)": ({"controller": "hop", "gait_speed": 1.2}, "none", None, None, None),
 }
 
 
@@ -175,7 +175,7 @@ OTHER = {
     # one motor at half strength (a failing driver), the other eleven nominal: a shared strength cancels it
     "weak FR_calf 0.5": ({"strength": WEAK}, "effect", "motor_strength", "scale", WEAK),
     # a faster motor (no load 16 rad/s: slope 2.09) on a gentler hop
-    "torque-speed 16 rad/s (hop)": ({"dc_motor": (33.5, 16.0), "controller": "hop", "pace_speed": 1.1}, "effect",
+    "torque-speed 16 rad/s (hop)": ({"dc_motor": (33.5, 16.0), "controller": "hop", "gait_speed": 1.1}, "effect",
                                     "torque_speed", "slope", 33.5 / 16.0),
 }
 

@@ -32,7 +32,7 @@ class LogSpec:
     seed: int = 0
     controller: str = "sines"            # "sines": random smooth joint targets; "pace": lateral-pair gait;
     # "hop": every leg folds and pushes together at 2-2.6 Hz (the trunk leaves the ground)
-    pace_speed: float = 1.0              # the pace's and the hop's frequency and amplitudes times this (faster legs)
+    gait_speed: float = 1.0              # the pace's and the hop's frequency and amplitudes times this (faster legs)
     control_hz: int = 50
     physics_hz: int = 1000
     kp: float | tuple[float, ...] = 60.0  # N m/rad: every joint, or 12 in JOINT_NAMES order
@@ -107,7 +107,7 @@ def _targets(s: LogSpec, rng: np.random.Generator):
         phase = rng.uniform(0, 2 * np.pi, (3, 12))
         return lambda t: STANCE + (amp * np.sin(2 * np.pi * freq * t + phase)).sum(0)
     if s.controller == "pace":  # left and right pairs alternate (acn's trot uses diagonals)
-        f, g = rng.uniform(1.6, 2.2) * s.pace_speed, s.pace_speed
+        f, g = rng.uniform(1.6, 2.2) * s.gait_speed, s.gait_speed
 
         def pace(t: float) -> np.ndarray:
             out = STANCE.copy()
@@ -118,8 +118,8 @@ def _targets(s: LogSpec, rng: np.random.Generator):
             return out
         return pace
     if s.controller == "hop":  # every leg folds and pushes together: the trunk bounces, motors near their limits
-        f = rng.uniform(2.0, 2.6) * s.pace_speed
-        fold = np.tile([0.0, 0.35, -0.7], 4) * s.pace_speed
+        f = rng.uniform(2.0, 2.6) * s.gait_speed
+        fold = np.tile([0.0, 0.35, -0.7], 4) * s.gait_speed
         return lambda t: STANCE + fold * 0.5 * (1.0 - np.cos(2 * np.pi * f * t))
     raise ValueError(s.controller)
 

@@ -169,7 +169,7 @@ def test_a_hopping_robot_that_pitches_in_flight_has_a_consistent_accelerometer()
     """Level while its legs push (large specific force), pitched up to 0.87 rad while it flies: the
     accelerometer's mean over the rows near level read 13.0 m/s^2 up and was named. Gravity as the
     logged roll and pitch turn it into the trunk frame, over every row, is what it matches."""
-    hop = simulate(LogSpec(seconds=4.0, episodes=2, seed=105, controller="hop", pace_speed=1.2))
+    hop = simulate(LogSpec(seconds=4.0, episodes=2, seed=105, controller="hop", gait_speed=1.2))
     assert np.abs(hop["base_pitch"]).max() > 0.5
     assert check(_episodes(hop), 1 / 50) == []
 
