@@ -16,6 +16,7 @@ from acn.toolkit.hidden import parse_hidden
 from acn.toolkit.policies import Trot
 from acn.toolkit.resim import Resimulator
 from acn.toolkit.robot import ModelParams
+from acn.toolkit.state import SLICES
 
 CONTRACT = {
     "joint_damping": ["value"], "joint_friction": ["value"], "armature": ["value"], "actuator_latency": ["seconds"],
@@ -157,6 +158,20 @@ def test_the_torque_speed_line_narrows_the_torque_in_the_direction_of_motion():
     nominal = Actuation.from_config(SimConfig(action_mode="torque"))
     assert nominal.native and not nominal.reads_joints
     np.testing.assert_allclose(nominal.torque(np.full(12, 40.0), q, qd), 33.5)
+
+
+def test_a_torque_command_under_a_torque_speed_line_reaches_the_joints_once_scaled():
+    """Torque mode with the line: MuJoCo's actuators take the law's torque as it is (gain 1, no
+    control range of their own), so a joint receives strength x command where the line does not
+    bend, in both simulators; the native torque actuators' gain (the strength) would apply it twice."""
+    params = ModelParams(torque_speed=2.0, motor_strength=0.5)
+    command = np.tile([3.0, -10.0, 10.0], 4)
+    for backend in ("mujoco", "pybullet"):
+        with make_backend(backend, SimConfig(action_mode="torque", params=params)) as sim:
+            sim.reset(initial_state(CollectConfig(), 0))
+            effort = sim.step(command)
+            assert np.abs(sim.get_state()[SLICES["joint_vel"]]).max() < 33.5 / 2.0 - 10.0  # the line stays out of reach
+        np.testing.assert_allclose(effort, 0.5 * command, atol=1e-6, err_msg=backend)
 
 
 def test_both_backends_carry_the_same_payload():
