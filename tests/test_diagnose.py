@@ -888,7 +888,7 @@ def test_a_motors_torque_speed_line_is_found_in_a_hopping_robots_log(tmp_path):
     on a robot that hops, the one motion of these logs that drives the motors fast and hard at
     once: ``torque_speed`` is ranked first over the whole catalogue, its slope (33.5 / 14 = 2.39
     N m s/rad) fitted and the error removed. (A noise-free log: under the typical sensor noise the
-    line bends 1.5 % of this hop's steps, too few to be named; a hop at 1.2x its speed is named,
+    line bends 1.4 % of this hop's steps, too few to be named; a hop at 1.2x its speed is named,
     docs/diagnosis.md.)"""
     from acn.datasets.importer import ImportConfig, import_log
 
