@@ -1102,14 +1102,14 @@ def test_the_legs_velocity_reads_an_instant_accelerometer_and_checks_a_logged_ve
     from robot_log import simulate
 
     from acn.datasets.importer import ImportConfig, import_log
+    from acn.datasets.odometry import world_acceleration
     from acn.models.diagnose.accelerometer import read_accelerometer
-    from acn.toolkit.robot import GRAVITY
     from acn.toolkit.rotations import rpy_to_matrices
 
     cols = simulate(LogSpec(seconds=10.0, episodes=4, seed=100, noise=1.0, accelerometer="sensor"))
     rot = rpy_to_matrices(np.stack([cols[n] for n in GROUPS["base_rpy"]], 1))
     world = np.einsum("nij,nj->ni", rot, np.stack([cols[n] for n in GROUPS["base_linvel"]], 1))
-    acc = np.einsum("nij,nj->ni", rot, np.stack([cols[n] for n in GROUPS["imu_acc"]], 1)) - [0.0, 0.0, GRAVITY]
+    acc = world_acceleration(np.stack([cols[n] for n in GROUPS["imu_acc"]], 1), rot)
     estimate, episode = world.copy(), np.asarray(cols["episode_index"])
     for k in range(1, len(world)):
         if episode[k] == episode[k - 1]:
