@@ -154,6 +154,9 @@ CASES = {
     "torque-speed (hop)": ({"dc_motor": (33.5, 14.0), "controller": "hop", "gait_speed": 1.2}, "effect",
                            "torque_speed", "slope", 33.5 / 14.0),
     "nominal (hop)": ({"controller": "hop", "gait_speed": 1.2}, "none", None, None, None),
+    # the motor follows its commands through a first-order low-pass (a driver's bandwidth): named a
+    # latency before the catalogue had actuator_lag
+    "actuator lag": ({"command_lag": 0.015}, "effect", "actuator_lag", "timeconst", 0.015),
 }
 
 
@@ -177,6 +180,8 @@ OTHER = {
     # a faster motor (no load 16 rad/s: slope 2.09) on a gentler hop
     "torque-speed 16 rad/s (hop)": ({"dc_motor": (33.5, 16.0), "controller": "hop", "gait_speed": 1.1}, "effect",
                                     "torque_speed", "slope", 33.5 / 16.0),
+    # a faster driver on the pace gait: named a latency and joint damping before actuator_lag
+    "lag 8 ms (pace)": ({"command_lag": 0.008, "controller": "pace"}, "effect", "actuator_lag", "timeconst", 0.008),
 }
 
 
@@ -199,6 +204,9 @@ PAIRS = {
                         [("payload", "mass", 2.0), ("joint_damping", "value", 0.4)]),
     "pd_gains+armature": ({"gains": (0.75, 1.0), "spec_edit": _joints("armature", 0.02)},
                           [("pd_gains", "kp_scale", 0.75), ("armature", "value", 0.02)]),
+    # a delay and a low-pass on one signal path (transport, then the driver's bandwidth)
+    "latency+lag": ({"latency_steps": 8, "command_lag": 0.01},
+                    [("actuator_latency", "seconds", 0.008), ("actuator_lag", "timeconst", 0.01)]),
 }
 
 

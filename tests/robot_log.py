@@ -39,6 +39,8 @@ class LogSpec:
     kd: float | tuple[float, ...] = 1.5
     torque_limit: float = 33.5
     latency_steps: int = 0               # physics steps a command arrives late
+    command_lag: float = 0.0             # s, time constant of a first-order low-pass on the command the motor
+    # follows (after the delay, every physics step, every stream of a hybrid command): a driver's bandwidth
     strength: float | np.ndarray = 1.0   # torque produced / commanded: every joint, or 12 in JOINT_NAMES order
     gains: tuple[float, float] = (1.0, 1.0)  # the PD really runs with (kp, kd) times these
     deadband: float = 0.0                # rad, total width of a dead band on the PD error
@@ -210,6 +212,8 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
         mujoco.mj_forward(m, d)
         # (q_des, dq_des, tau_ff, kp, kd): a command waits this many physics steps
         queue = [np.stack([STANCE, np.zeros(12), np.zeros(12), kp, kd])] * s.latency_steps
+        lagged = None  # the command the motor follows through its low-pass (command_lag)
+        follow = 1.0 - np.exp(-1.0 / (s.command_lag * s.physics_hz)) if s.command_lag else 1.0
         ff_phase = rng.uniform(0, 2 * np.pi, 12) if s.feedforward else None
         v_prev = d.qvel[0:3].copy()
         touching = np.ones(4)
@@ -268,7 +272,9 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
             last = periods[row] / s.physics_hz
             for _ in range(periods[row]):
                 queue.append(np.stack([a, dq_des, tau_ff, kp_t, kd_t]))
-                cmd, cmd_vel, cmd_ff, cmd_kp, cmd_kd = queue.pop(0)
+                sent = queue.pop(0)
+                lagged = sent if lagged is None else lagged + follow * (sent - lagged)
+                cmd, cmd_vel, cmd_ff, cmd_kp, cmd_kd = lagged
                 q, qd = d.qpos[qadr] + offset, d.qvel[dadr]
                 if s.torque_control:
                     tau = np.clip(cmd, -s.torque_limit, s.torque_limit)

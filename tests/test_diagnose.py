@@ -900,6 +900,24 @@ def test_a_motors_torque_speed_line_is_found_in_a_hopping_robots_log(tmp_path):
     assert d.added[0].judgement.explained(d.floor_mse) >= 0.8
 
 
+def test_a_low_pass_on_the_commands_is_told_from_a_latency(tmp_path):
+    """Another code's motor follows its (held) commands through a first-order low-pass, 15 ms,
+    every physics step: ``actuator_lag`` is ranked first over the whole catalogue, ahead of
+    ``actuator_latency`` (which delays the same commands by about as much at low frequency, but
+    keeps each control step's jump sharp), under the typical sensor noise; its time constant
+    is fitted and the error removed. (Before the catalogue had the lag, such a log was named
+    a latency, and a pace log a latency and joint damping.)"""
+    from acn.datasets.importer import ImportConfig, import_log
+
+    write_log(tmp_path / "log.csv", LogSpec(seed=6, command_lag=0.015, noise=1.0))
+    path, _ = import_log(tmp_path / "log.csv", tmp_path / "robot", ImportConfig(50, 60.0, 1.5, 33.5))
+    d = diagnose(load_measurements(path), Model.parse("mujoco"), replace(FAST, finest="shared"), add=["actuator_lag"])
+    names = [c.name for c in d.ranking]
+    assert names[0] == "actuator_lag" and d.verdict == "effect", [(c.name, c.score) for c in d.ranking[:3]]
+    assert close(d.added[0].fit.values["timeconst"], 0.015, 0.15), d.added[0].fit.values
+    assert d.added[0].judgement.explained(d.floor_mse) >= 0.8
+
+
 def test_an_effect_that_acts_on_few_steps_is_significant_by_its_longest_horizon_gain():
     """``rank.uneven``: where no plausible candidate is significant at one step, the plausible ones
     that remove >= 2 % are checked at the longest horizon, and one that removes a quarter of that

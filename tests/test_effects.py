@@ -23,7 +23,7 @@ CONTRACT = {
     "motor_strength": ["scale"], "torque_limit": ["value"], "pd_gains": ["kp_scale", "kd_scale"],
     "payload": ["mass", "com_x", "com_y", "com_z"], "ground_friction": ["value"], "encoder_offset": ["value"],
     "backlash": ["value"], "base_frame_offset": ["x", "y", "z", "roll", "pitch"], "ground_softness": ["timeconst"],
-    "torque_speed": ["slope"],
+    "torque_speed": ["slope"], "actuator_lag": ["timeconst"],
 }
 
 
@@ -97,20 +97,24 @@ def test_bad_model_files_are_one_line_errors(tmp_path, bad, message):
     assert "\n" not in str(e.value)
 
 
-@pytest.mark.parametrize("backend, gains, backlash, imu, slope", [
-    ("mujoco", False, 0.02, "instant", 0.0), ("pybullet", False, 0.02, "mean", 0.0),
-    ("mujoco", True, 0.0, "mean", 0.0), ("mujoco", True, 0.0, "instant", 0.0), ("mujoco", True, 0.02, "mean", 0.0),
-    ("pybullet", True, 0.02, "instant", 0.0),
-    ("mujoco", False, 0.0, "mean", 8.0), ("pybullet", False, 0.0, "mean", 8.0), ("mujoco", True, 0.0, "mean", 8.0)])
-def test_resimulation_reproduces_the_backend_step_by_step(backend, gains, backlash, imu, slope):
+@pytest.mark.parametrize("backend, gains, backlash, imu, slope, lag", [
+    ("mujoco", False, 0.02, "instant", 0.0, 0.0), ("pybullet", False, 0.02, "mean", 0.0, 0.0),
+    ("mujoco", True, 0.0, "mean", 0.0, 0.0), ("mujoco", True, 0.0, "instant", 0.0, 0.0),
+    ("mujoco", True, 0.02, "mean", 0.0, 0.0), ("pybullet", True, 0.02, "instant", 0.0, 0.0),
+    ("mujoco", False, 0.0, "mean", 8.0, 0.0), ("pybullet", False, 0.0, "mean", 8.0, 0.0),
+    ("mujoco", True, 0.0, "mean", 8.0, 0.0),
+    ("mujoco", False, 0.0, "mean", 0.0, 0.006), ("pybullet", False, 0.0, "instant", 0.0, 0.006),
+    ("mujoco", True, 0.0, "mean", 0.0, 0.006)])
+def test_resimulation_reproduces_the_backend_step_by_step(backend, gains, backlash, imu, slope, lag):
     """Batch re-simulation from recorded states (with latency history) equals stepping the backend;
     also with gains that change every step (``hybrid``: MuJoCo's four actuators per joint
-    without a dead band, the law in numpy with one), with either accelerometer (``imu``), and
-    with a torque-speed line (``slope``, the law in numpy; 8 N m s/rad bends these twelve trot
-    steps, moving the state by up to 0.25, where 4 left them as they were)."""
+    without a dead band, the law in numpy with one), with either accelerometer (``imu``), with
+    a torque-speed line (``slope``, the law in numpy; 8 N m s/rad bends these twelve trot
+    steps, moving the state by up to 0.25, where 4 left them as they were), and with the
+    commands through a low-pass after the latency (``lag``, s: it reaches three actions back)."""
     params = ModelParams(latency=0.027, encoder_offset=0.03, payload_mass=1.0, payload_com=[0.02, 0.0, 0.01],
                          backlash=backlash, armature=0.01, kp_scale=0.8, kd_scale=1.2, motor_strength=0.9,
-                         base_frame_offset=[0.03, -0.02, 0.05, 0.02, -0.03, 0.04], torque_speed=slope)
+                         base_frame_offset=[0.03, -0.02, 0.05, 0.02, -0.03, 0.04], torque_speed=slope, lag=lag)
     cfg = SimConfig(params=params, hybrid=gains, imu_acc=imu)
     s0, trot = initial_state(CollectConfig(), 1), Trot()
     states, actions, nexts, efforts = [], [], [], []
@@ -129,7 +133,7 @@ def test_resimulation_reproduces_the_backend_step_by_step(backend, gains, backla
             nexts.append(s)
     states, actions, nexts, efforts = map(np.array, (states, actions, nexts, efforts))
     rows = np.arange(3, 12)
-    previous = np.stack([actions[r - 2:r] for r in rows])  # latency 27 ms reaches two actions back at 50 Hz
+    previous = np.stack([actions[r - 3:r] for r in rows])  # latency 27 ms (+ 5 x lag 6 ms) reaches 2 (3) back
     with Resimulator(backend, cfg) as resim:
         pred = resim.run(states[rows], actions[rows], previous)
         chain = resim.run(states[3:4], actions[None, 3:12], previous[:1])
@@ -139,6 +143,31 @@ def test_resimulation_reproduces_the_backend_step_by_step(backend, gains, backla
     np.testing.assert_allclose(pred.effort[:, 0], efforts[rows], atol=tol * 10)
     np.testing.assert_allclose(chain.state[0, :, :36], nexts[3:12, :36], atol=tol * 10)
     assert np.isnan(pred.state[:, 0, 36:40]).all()  # contacts are readings, not predicted
+
+
+def test_the_commands_signal_path_delays_and_low_passes_the_held_actions():
+    """Per physics step, the command is the mean over the step of the held action stream, delayed
+    by the latency and followed through the lag's first-order low-pass: a whole number of physics
+    steps of latency is exactly an earlier action; a step in the action rises as 1 - exp(-t / T)
+    after the latency; the weights of every step sum to 1 (older actions than remembered count
+    as the oldest)."""
+    def weights(**p):
+        return Actuation.from_config(SimConfig(params=ModelParams(**p)))
+
+    late = weights(latency=0.005)  # 5 physics steps: steps 0-4 take a_{t-1}, 5-19 a_t
+    assert late.history == 1
+    np.testing.assert_allclose(late.command_weights(), np.repeat([[1.0, 0.0], [0.0, 1.0]], [5, 15], axis=0), atol=1e-12)
+    lag = weights(latency=0.003, lag=0.01)
+    w = lag.command_weights()
+    assert lag.history == 3 and w.shape == (20, 4)  # 3 ms + 5 x 10 ms reaches 53 ms back: three actions
+    np.testing.assert_allclose(w.sum(axis=1), 1.0)
+    t = np.arange(20) * 1e-3 - 0.003  # each physics step's start after the latency, s
+    lo, hi = np.maximum(t, 0.0), np.maximum(t + 1e-3, 0.0)
+    rise = ((hi - lo) - 0.01 * (np.exp(-lo / 0.01) - np.exp(-hi / 0.01))) / 1e-3  # mean of 1 - exp(-t / T)
+    np.testing.assert_allclose(w[:, 3], rise, atol=1e-12)
+    a = np.array([[0.0] * 12, [0.0] * 12, [0.0] * 12, [1.0] * 12])  # a step in the action at t
+    np.testing.assert_allclose(lag.commands(a)[:, 0], rise, atol=1e-12)
+    assert not weights().delayed and weights(lag=0.01).delayed
 
 
 def test_the_torque_speed_line_narrows_the_torque_in_the_direction_of_motion():

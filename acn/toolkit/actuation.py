@@ -2,9 +2,12 @@
 
 From the action a_t to the torque on each joint, per physics step (all per joint):
 
-1. **latency** L: the command in force during a physics step is the zero-order-held action
-   stream delayed by L, averaged over that step (so it is continuous in L; a whole number of
-   physics steps gives exactly the action sent that many steps earlier);
+1. **latency** L and **lag** T: the command in force during a physics step is the
+   zero-order-held action stream delayed by L, then followed through a first-order low-pass of
+   time constant T (a driver's bandwidth), averaged over that step (so it is continuous in L and
+   T; a whole number of physics steps of latency without lag gives exactly the action sent that
+   many steps earlier). The low-pass remembers ``LAG_MEMORY`` T of actions; the weight of older
+   ones (at most exp(-LAG_MEMORY)) goes to the oldest action remembered;
 2. **reading**: the encoder reads ``q + encoder_offset``; the PD acts on the reading;
 3. **position mode**: ``e = deadband(command - reading, backlash / 2)``,
    ``tau_cmd = clip(kp_scale kp e - kd_scale kd qdot, -limit, limit)``;
@@ -30,9 +33,9 @@ F), 48 columns; the dead band acts on P / G - reading).
 With nominal parameters this is exactly ``SimConfig``'s PD law. MuJoCo realises steps 2-4 with
 native actuator parameters when there is no dead band and no torque-speed line
 (``Actuation.native``); otherwise, and in PyBullet, ``torque`` is evaluated in Python every
-physics step. Latency is always realised
-by the command sequence (``commands``), so a re-simulation from a recorded state only needs the
-recorded previous actions.
+physics step. Latency
+and lag are always realised by the command sequence (``commands``), so a re-simulation from a
+recorded state only needs the recorded previous actions.
 """
 
 from __future__ import annotations
@@ -47,6 +50,16 @@ from acn.toolkit.state import NUM_JOINTS
 
 
 HYBRID_PARTS = ("target", "kp", "kd", "velocity", "torque")  # a hybrid command: rad, N m/rad, N m s/rad, rad/s, N m
+LAG_MEMORY = 5.0  # time constants of actions the lag's low-pass remembers (older ones: exp(-5) = 0.7 % of the weight)
+
+
+def _lagged_integral(x: np.ndarray, delay: float, lag: float) -> np.ndarray:
+    """G(x) = integral to x of the step response F of the signal path, s: F(x) = 0 before the
+    delay, 1 - exp(-(x - delay) / lag) after it (1 at once without lag)."""
+    x = np.maximum(np.asarray(x, float) - delay, 0.0)
+    if lag <= 0:
+        return x
+    return x - lag * -np.expm1(-x / lag)
 
 
 def position_targets(actions: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -79,6 +92,7 @@ class Actuation:
     kp_scale: np.ndarray | float = 1.0  # multiplies the kp a hybrid command sends (``kp`` above includes it)
     kd_scale: np.ndarray | float = 1.0  # the same for kd, on -qdot and on the velocity target
     speed_slope: np.ndarray | float = 0.0  # N m s/rad, the torque-speed line's slope (module docstring)
+    lag: float = 0.0        # s, time constant of the low-pass on the commands (module docstring)
 
     @classmethod
     def from_config(cls, config) -> "Actuation":
@@ -90,7 +104,8 @@ class Actuation:
                    limit=limit * ones, strength=p.motor_strength.copy(), offset=p.encoder_offset.copy(),
                    deadband=p.backlash / 2.0, latency=float(p.latency), physics_dt=config.physics_dt,
                    substeps=config.substeps, hybrid=config.hybrid, kp_scale=p.kp_scale.copy(),
-                   kd_scale=p.kd_scale.copy(), speed_slope=p.torque_speed.copy())
+                   kd_scale=p.kd_scale.copy(), speed_slope=p.torque_speed.copy(),
+                   lag=float(p.lag))
 
     @property
     def command_width(self) -> int:
@@ -111,25 +126,33 @@ class Actuation:
         return self.mode == "position" or bool(np.any(np.asarray(self.speed_slope) > 0))
 
     @property
+    def delayed(self) -> bool:
+        """True if a command reaches the motors other than as sent (latency or lag)."""
+        return self.latency > 0 or self.lag > 0
+
+    @property
     def history(self) -> int:
-        """How many previous actions the latency reaches back to (0 without latency)."""
+        """How many previous actions the latency and the lag reach back to (0 without them)."""
         control_dt = self.physics_dt * self.substeps
-        return int(math.ceil(self.latency / control_dt - 1e-9)) if self.latency > 0 else 0
+        reach = self.latency + LAG_MEMORY * self.lag
+        return int(math.ceil(reach / control_dt - 1e-9)) if reach > 0 else 0
 
     # ----- step 1: which command is in force during each physics step ----------------------
     def command_weights(self) -> np.ndarray:
         """W (substeps, history + 1): command during physics step k = sum_h W[k, h] a_{t - H + h}.
 
-        Column H is the current action a_t, column 0 the oldest one needed.
+        Column H is the current action a_t, column 0 the oldest one needed (it stands for every
+        action before it too: each row sums to 1). The step response F of the signal path
+        (``_lagged_integral``) gives the share of a_{t-H+h}, held over [c_lo, c_hi), in the command
+        at time x as F(x - c_lo) - F(x - c_hi); W is its mean over the physics step.
         """
         n, dt, hist = self.substeps, self.physics_dt, self.history
         control_dt = n * dt
-        w = np.zeros((n, hist + 1))
-        for k in range(n):
-            lo, hi = k * dt - self.latency, (k + 1) * dt - self.latency  # delayed window, s from t
-            for h in range(hist + 1):
-                c_lo, c_hi = (h - hist) * control_dt, (h - hist + 1) * control_dt  # when a_{t-H+h} was held
-                w[k, h] = max(0.0, min(hi, c_hi) - max(lo, c_lo)) / dt
+        lo, hi = np.arange(n)[:, None] * dt, np.arange(1, n + 1)[:, None] * dt  # physics step k, s from t
+        held = (np.arange(hist + 1)[None, :] - hist) * control_dt  # when a_{t-H+h} started to be held
+        g = lambda x: _lagged_integral(x, self.latency, self.lag)  # noqa: E731
+        w = (g(hi - held) - g(lo - held) - g(hi - held - control_dt) + g(lo - held - control_dt)) / dt
+        w[:, 0] = 1.0 - w[:, 1:].sum(axis=1)  # the oldest action also stands for the ones before it
         return w
 
     def commands(self, actions: np.ndarray) -> np.ndarray:
@@ -143,7 +166,7 @@ class Actuation:
             u, kp, kd, v, tau = np.split(actions, len(HYBRID_PARTS), axis=-1)
             actions = np.concatenate([kp * u, kp, kd, self.kd_scale * kd * v + tau], axis=-1)
         hist = self.history
-        if hist == 0 and self.latency == 0:
+        if not self.delayed:
             return np.repeat(actions, self.substeps, axis=-2)
         w = self.command_weights()
         k = actions.shape[-2] - hist

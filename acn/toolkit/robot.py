@@ -100,9 +100,9 @@ class ModelParams:
                         constant, critically damped)             ``contactDamping`` (``soft_contact``)
     base_frame_offset   the state's reading of the trunk         the same
                         (``acn.toolkit.frames``)
-    latency ... backlash  the control law (``acn.toolkit.actuation``): native actuator parameters
-    and torque_speed    in MuJoCo where the law allows, otherwise a torque computed per physics
-                        step, as in PyBullet
+    latency, lag, ...   the control law (``acn.toolkit.actuation``): native actuator parameters
+    backlash,           in MuJoCo where the law allows, otherwise a torque computed per physics
+    torque_speed        step, as in PyBullet
     ==================  =======================================  ===================================
     """
 
@@ -114,6 +114,7 @@ class ModelParams:
     ground_friction: float = 1.0  # sliding friction coefficient, foot-ground
     ground_timeconst: float = GROUND_TIMECONST  # s, the foot-ground contact's time constant (softness)
     latency: float = 0.0          # s, a command reaches the motors this late
+    lag: float = 0.0              # s, time constant of a first-order low-pass the motors follow commands through
     motor_strength: np.ndarray = field(default_factory=lambda: np.ones(NUM_JOINTS))   # produced / commanded
     torque_limit: np.ndarray | None = None  # N m per joint; None: the control settings' limit
     kp_scale: np.ndarray = field(default_factory=lambda: np.ones(NUM_JOINTS))
@@ -134,7 +135,7 @@ class ModelParams:
         self.base_frame_offset = np.broadcast_to(np.asarray(self.base_frame_offset, dtype=float), (6,)).copy()
         self.payload_mass, self.ground_friction = float(self.payload_mass), float(self.ground_friction)
         self.ground_timeconst = float(self.ground_timeconst)
-        self.latency = float(self.latency)
+        self.latency, self.lag = float(self.latency), float(self.lag)
 
     def copy(self) -> "ModelParams":
         return ModelParams(**{k: (np.copy(v) if isinstance(v, np.ndarray) else v) for k, v in vars(self).items()})

@@ -27,7 +27,7 @@ from acn.datasets import checks
 from acn.datasets.measurements import Measurements, fill_derived
 from acn.datasets.reader import state_difference
 from acn.errors import UserError
-from acn.toolkit.actuation import position_targets
+from acn.toolkit.actuation import LAG_MEMORY, position_targets
 from acn.toolkit.backends import SimConfig
 from acn.toolkit.effects import EFFECT_NAMES, Model
 from acn.toolkit.resim import Resimulator
@@ -35,7 +35,10 @@ from acn.toolkit.state import ACTION_DIM, GROUPS, SLICES, STATE_NAMES
 
 # Channel groups a model is compared on (contacts are binary readings, not predicted).
 COMPARED_GROUPS = ("base_pos", "base_rpy", "joint_pos", "base_linvel", "base_angvel", "joint_vel", "imu_acc")
-MAX_LATENCY = 0.06  # s, the catalogue's upper bound: how many previous actions a row carries
+MAX_LATENCY = 0.06  # s, the catalogue's upper bounds of actuator_latency and actuator_lag: how many
+MAX_LAG = 0.06      # previous actions a row carries (the lag's low-pass remembers LAG_MEMORY time constants)
+MAX_HISTORY = 32    # previous actions a row carries at most where the latency allows (fast control rates: an
+# older action's weight goes to the oldest carried, ``acn.toolkit.resim``)
 
 
 @dataclass
@@ -188,7 +191,8 @@ def prepare(data: Measurements, model: Model, cfg: DiagnoseConfig) -> Problem:
     one_step = data.windows(unit)
     ok[one_step] = finite[one_step] & np.isfinite(data.next_state[one_step + unit - 1][:, channels]).all(1)
     ok &= _fresh(data, one_step, unit, derived, ok)
-    history = int(math.ceil(MAX_LATENCY / data.control.control_dt)) + 1
+    history = max(int(math.ceil(MAX_LATENCY / data.control.control_dt)) + 1,
+                  min(int(math.ceil((MAX_LATENCY + LAG_MEMORY * MAX_LAG) / data.control.control_dt)) + 1, MAX_HISTORY))
     fit_rows, held_rows = np.flatnonzero(ok & ~held), np.flatnonzero(ok & held)
     if min(len(fit_rows), len(held_rows)) < 8:
         raise UserError(f"{data.description}: too few complete transitions to fit on some and judge on others "

@@ -165,7 +165,7 @@ class Backend(ABC):
         self.actuation = Actuation.from_config(self.config)
         self._frame = self.config.params.base_frame_offset  # where the trunk's channels are read
         self._build()
-        self._history: np.ndarray | None = None  # previous actions (oldest first) for the latency
+        self._history: np.ndarray | None = None  # previous actions (oldest first) for the latency and lag
         self._linvel_world = np.zeros(3)
         self._contact = np.zeros(len(FOOT_NAMES))
         self._imu_acc = np.array([0.0, 0.0, GRAVITY])
@@ -274,9 +274,9 @@ class Backend(ABC):
     # ----- shared helpers ---------------------------------------------------------------
     def _commands(self, action: np.ndarray) -> np.ndarray:
         """(substeps, width) per-physics-step commands for ``action`` (``Actuation.commands``);
-        remembers it for the latency."""
+        remembers it for the latency and the lag."""
         hist = self.actuation.history
-        if hist == 0 and self.actuation.latency == 0 and not self.actuation.hybrid:
+        if not self.actuation.delayed and not self.actuation.hybrid:
             return np.broadcast_to(action, (self.config.substeps, ACTION_DIM))
         past = self._history if self._history is not None else np.empty((0, len(action)))
         if len(past) < hist:  # earlier actions unknown: taken equal to the oldest one known

@@ -7,6 +7,8 @@ joint_damping       value N m s/rad (per joint)                0.1 - 2 (see belo
 joint_friction      value N m, Coulomb (per joint)             0.1 - 0.6
 armature            value kg m^2, reflected rotor (per joint)  0.005 - 0.03
 actuator_latency    seconds                                    0.002 - 0.025
+actuator_lag        timeconst s: the motors follow commands        0.003 - 0.03
+                    through a first-order low-pass
 motor_strength      scale, produced / commanded (per joint)    0.7 - 0.95
 torque_limit        value N m (per joint)                      12 - 25 (below the commanded peaks)
 pd_gains            kp_scale, kd_scale (per joint)             0.6 - 0.9, 0.5 - 0.9
@@ -52,6 +54,10 @@ def _setter(field: str, parameter: str = "value"):
 
 def _latency(params: ModelParams, values) -> None:
     params.latency = float(values["seconds"])
+
+
+def _lag(params: ModelParams, values) -> None:
+    params.lag = float(values["timeconst"])
 
 
 def _pd_gains(params: ModelParams, values) -> None:
@@ -113,6 +119,11 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
     Effect("actuator_latency", "commands reach the motors late (transport and driver delay)",
            (Parameter("seconds", "s", 0.0, 0.0, 0.06, realistic=(0.002, 0.025)),),
            _latency, mujoco="per-physics-step control sequence (rollout control), the law of acn.toolkit.actuation",
+           pybullet="the same control sequence"),
+    Effect("actuator_lag", "the motors follow commands through a first-order low-pass (a driver's bandwidth, "
+           "an action filter after the log)",
+           (Parameter("timeconst", "s", 0.0, 0.0, 0.06, realistic=(0.003, 0.03)),),
+           _lag, mujoco="per-physics-step control sequence (rollout control), the law of acn.toolkit.actuation",
            pybullet="the same control sequence"),
     Effect("motor_strength", "the motors produce a fraction of the commanded torque",
            (Parameter("scale", "1", 1.0, 0.2, 1.5, per_joint=True, realistic=(0.7, 0.95)),),
