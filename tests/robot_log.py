@@ -39,6 +39,8 @@ class LogSpec:
     kd: float | tuple[float, ...] = 1.5
     torque_limit: float = 33.5
     latency_steps: int = 0               # physics steps a command arrives late
+    action_smoothing: float = 0.0        # b: the controller sends b x its previous sent target + (1 - b) x the
+    # action it logs (an exponential moving average once per control step, after the log; position targets)
     command_lag: float = 0.0             # s, time constant of a first-order low-pass on the command the motor
     # follows (after the delay, every physics step, every stream of a hybrid command): a driver's bandwidth
     strength: float | np.ndarray = 1.0   # torque produced / commanded: every joint, or 12 in JOINT_NAMES order
@@ -268,6 +270,9 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
             rows["timestamp"].append(clock / s.physics_hz if s.jitter_logged else k / s.control_hz)
             v_prev = d.qvel[0:3].copy()
             touching = np.zeros(4)
+            if s.action_smoothing:  # what the motors get; the log keeps the action as the controller chose it
+                a = a if k == 0 else s.action_smoothing * sent + (1.0 - s.action_smoothing) * a
+                sent = a
             clock += periods[row]
             last = periods[row] / s.physics_hz
             for _ in range(periods[row]):
