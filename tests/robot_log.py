@@ -271,8 +271,8 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
             v_prev = d.qvel[0:3].copy()
             touching = np.zeros(4)
             if s.action_smoothing:  # what the motors get; the log keeps the action as the controller chose it
-                a = a if k == 0 else s.action_smoothing * sent + (1.0 - s.action_smoothing) * a
-                sent = a
+                a = a if k == 0 else s.action_smoothing * smoothed + (1.0 - s.action_smoothing) * a
+                smoothed = a
             clock += periods[row]
             last = periods[row] / s.physics_hz
             for _ in range(periods[row]):
