@@ -182,6 +182,10 @@ OTHER = {
                                     "torque_speed", "slope", 33.5 / 16.0),
     # a faster driver on the pace gait: named a latency and joint damping before actuator_lag
     "lag 8 ms (pace)": ({"command_lag": 0.008, "controller": "pace"}, "effect", "actuator_lag", "timeconst", 0.008),
+    # a controller that smooths its actions after logging them (an exponential moving average, 0.5 of the
+    # previous sent target per control step): another form of a lag; true value the continuous time
+    # constant whose samples it equals, -0.02 s / ln 0.5
+    "action smoothing 0.5": ({"action_smoothing": 0.5}, "effect", "actuator_lag", "timeconst", -0.02 / np.log(0.5)),
 }
 
 
