@@ -33,9 +33,8 @@ F), 48 columns; the dead band acts on P / G - reading).
 With nominal parameters this is exactly ``SimConfig``'s PD law. MuJoCo realises steps 2-4 with
 native actuator parameters when there is no dead band and no torque-speed line
 (``Actuation.native``); otherwise, and in PyBullet, ``torque`` is evaluated in Python every
-physics step. Latency
-and lag are always realised by the command sequence (``commands``), so a re-simulation from a
-recorded state only needs the recorded previous actions.
+physics step. Latency and lag are always realised by the command sequence (``commands``), so a
+re-simulation from a recorded state only needs the recorded previous actions.
 """
 
 from __future__ import annotations
@@ -150,7 +149,9 @@ class Actuation:
         control_dt = n * dt
         lo, hi = np.arange(n)[:, None] * dt, np.arange(1, n + 1)[:, None] * dt  # physics step k, s from t
         held = (np.arange(hist + 1)[None, :] - hist) * control_dt  # when a_{t-H+h} started to be held
-        g = lambda x: _lagged_integral(x, self.latency, self.lag)  # noqa: E731
+        def g(x: np.ndarray) -> np.ndarray:
+            return _lagged_integral(x, self.latency, self.lag)
+
         w = (g(hi - held) - g(lo - held) - g(hi - held - control_dt) + g(lo - held - control_dt)) / dt
         w[:, 0] = 1.0 - w[:, 1:].sum(axis=1)  # the oldest action also stands for the ones before it
         return w

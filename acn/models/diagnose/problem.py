@@ -35,10 +35,18 @@ from acn.toolkit.state import ACTION_DIM, GROUPS, SLICES, STATE_NAMES
 
 # Channel groups a model is compared on (contacts are binary readings, not predicted).
 COMPARED_GROUPS = ("base_pos", "base_rpy", "joint_pos", "base_linvel", "base_angvel", "joint_vel", "imu_acc")
-MAX_LATENCY = 0.06  # s, the catalogue's upper bounds of actuator_latency and actuator_lag: how many
-MAX_LAG = 0.06      # previous actions a row carries (the lag's low-pass remembers LAG_MEMORY time constants)
-MAX_HISTORY = 32    # previous actions a row carries at most where the latency allows (fast control rates: an
-# older action's weight goes to the oldest carried, ``acn.toolkit.resim``)
+MAX_LATENCY = 0.06  # s, the catalogue's upper bound of actuator_latency
+MAX_LAG = 0.06      # s, of actuator_lag (its low-pass remembers LAG_MEMORY time constants of actions)
+MAX_LAG_HISTORY = 32  # previous actions a row carries for the lag at most (fast control rates; an older
+# action's weight goes to the oldest carried, ``acn.toolkit.resim``); the latency's are always carried
+
+
+def carried_actions(control_dt: float) -> int:
+    """How many previous actions each row carries: what the longest latency and lag reach back
+    to, the lag's part at most ``MAX_LAG_HISTORY``."""
+    latency = int(math.ceil(MAX_LATENCY / control_dt)) + 1
+    lag = int(math.ceil((MAX_LATENCY + LAG_MEMORY * MAX_LAG) / control_dt)) + 1
+    return max(latency, min(lag, MAX_LAG_HISTORY))
 
 
 @dataclass
@@ -191,8 +199,7 @@ def prepare(data: Measurements, model: Model, cfg: DiagnoseConfig) -> Problem:
     one_step = data.windows(unit)
     ok[one_step] = finite[one_step] & np.isfinite(data.next_state[one_step + unit - 1][:, channels]).all(1)
     ok &= _fresh(data, one_step, unit, derived, ok)
-    history = max(int(math.ceil(MAX_LATENCY / data.control.control_dt)) + 1,
-                  min(int(math.ceil((MAX_LATENCY + LAG_MEMORY * MAX_LAG) / data.control.control_dt)) + 1, MAX_HISTORY))
+    history = carried_actions(data.control.control_dt)
     fit_rows, held_rows = np.flatnonzero(ok & ~held), np.flatnonzero(ok & held)
     if min(len(fit_rows), len(held_rows)) < 8:
         raise UserError(f"{data.description}: too few complete transitions to fit on some and judge on others "
