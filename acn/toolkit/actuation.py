@@ -112,9 +112,14 @@ class Actuation:
         return 4 * NUM_JOINTS if self.hybrid else NUM_JOINTS
 
     @property
+    def speed_limited(self) -> bool:
+        """True if some joint's torque is bounded by a torque-speed line (slope > 0)."""
+        return bool(np.any(np.asarray(self.speed_slope) > 0))
+
+    @property
     def native(self) -> bool:
         """True if MuJoCo's affine actuators can realise the law (no dead band, no torque-speed line)."""
-        if np.any(np.asarray(self.speed_slope) > 0):
+        if self.speed_limited:
             return False
         return self.mode == "torque" or not np.any(self.deadband > 0)
 
@@ -122,7 +127,7 @@ class Actuation:
     def reads_joints(self) -> bool:
         """True if the torque depends on the joint angle or velocity (position mode, or a
         torque-speed line)."""
-        return self.mode == "position" or bool(np.any(np.asarray(self.speed_slope) > 0))
+        return self.mode == "position" or self.speed_limited
 
     @property
     def delayed(self) -> bool:
@@ -199,8 +204,7 @@ class Actuation:
     def torque_range(self, qd: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """The commanded torque's bounds (N m) at joint velocity ``qd`` (rad/s): the limit, narrowed
         in the direction of motion by the torque-speed line (module docstring)."""
-        slope = np.asarray(self.speed_slope)
-        if qd is None or not np.any(slope > 0):
+        if qd is None or not self.speed_limited:
             return -self.limit, self.limit
-        drop = slope * qd
+        drop = np.asarray(self.speed_slope) * qd
         return np.clip(-self.limit - drop, -self.limit, 0.0), np.clip(self.limit - drop, 0.0, self.limit)
