@@ -215,7 +215,7 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
         # (q_des, dq_des, tau_ff, kp, kd): a command waits this many physics steps
         queue = [np.stack([STANCE, np.zeros(12), np.zeros(12), kp, kd])] * s.latency_steps
         lagged = None  # the command the motor follows through its low-pass (command_lag)
-        follow = 1.0 - np.exp(-1.0 / (s.command_lag * s.physics_hz)) if s.command_lag else 1.0
+        follow = 1.0 - np.exp(-1.0 / (s.command_lag * s.physics_hz)) if s.command_lag else None
         ff_phase = rng.uniform(0, 2 * np.pi, 12) if s.feedforward else None
         v_prev = d.qvel[0:3].copy()
         touching = np.ones(4)
@@ -278,7 +278,7 @@ def simulate(s: LogSpec) -> dict[str, np.ndarray]:
             for _ in range(periods[row]):
                 queue.append(np.stack([a, dq_des, tau_ff, kp_t, kd_t]))
                 sent = queue.pop(0)
-                lagged = sent if lagged is None else lagged + follow * (sent - lagged)
+                lagged = sent if lagged is None or follow is None else lagged + follow * (sent - lagged)
                 cmd, cmd_vel, cmd_ff, cmd_kp, cmd_kd = lagged
                 q, qd = d.qpos[qadr] + offset, d.qvel[dadr]
                 if s.torque_control:

@@ -151,13 +151,13 @@ def test_the_commands_signal_path_delays_and_low_passes_the_held_actions():
     steps of latency is exactly an earlier action; a step in the action rises as 1 - exp(-t / T)
     after the latency; the weights of every step sum to 1 (older actions than remembered count
     as the oldest)."""
-    def weights(**p):
+    def actuation(**p):
         return Actuation.from_config(SimConfig(params=ModelParams(**p)))
 
-    late = weights(latency=0.005)  # 5 physics steps: steps 0-4 take a_{t-1}, 5-19 a_t
+    late = actuation(latency=0.005)  # 5 physics steps: steps 0-4 take a_{t-1}, 5-19 a_t
     assert late.history == 1
     np.testing.assert_allclose(late.command_weights(), np.repeat([[1.0, 0.0], [0.0, 1.0]], [5, 15], axis=0), atol=1e-12)
-    lag = weights(latency=0.003, lag=0.01)
+    lag = actuation(latency=0.003, lag=0.01)
     w = lag.command_weights()
     assert lag.history == 3 and w.shape == (20, 4)  # 3 ms + 5 x 10 ms reaches 53 ms back: three actions
     np.testing.assert_allclose(w.sum(axis=1), 1.0)
@@ -167,7 +167,7 @@ def test_the_commands_signal_path_delays_and_low_passes_the_held_actions():
     np.testing.assert_allclose(w[:, 3], rise, atol=1e-12)
     a = np.array([[0.0] * 12, [0.0] * 12, [0.0] * 12, [1.0] * 12])  # a step in the action at t
     np.testing.assert_allclose(lag.commands(a)[:, 0], rise, atol=1e-12)
-    assert not weights().delayed and weights(lag=0.01).delayed
+    assert not actuation().delayed and actuation(lag=0.01).delayed
 
 
 def test_the_torque_speed_line_narrows_the_torque_in_the_direction_of_motion():

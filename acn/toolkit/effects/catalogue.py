@@ -7,7 +7,7 @@ joint_damping       value N m s/rad (per joint)                0.1 - 2 (see belo
 joint_friction      value N m, Coulomb (per joint)             0.1 - 0.6
 armature            value kg m^2, reflected rotor (per joint)  0.005 - 0.03
 actuator_latency    seconds                                    0.002 - 0.025
-actuator_lag        timeconst s: the motors follow commands        0.003 - 0.03
+actuator_lag        timeconst s: the motors follow commands    0.003 - 0.03
                     through a first-order low-pass
 motor_strength      scale, produced / commanded (per joint)    0.7 - 0.95
 torque_limit        value N m (per joint)                      12 - 25 (below the commanded peaks)
