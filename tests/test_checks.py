@@ -190,7 +190,8 @@ def test_a_robot_that_collapses_folding_its_legs_past_their_limits_has_the_right
     # past a soft limit, not a convention; before, this log read "another zero?" and "offsets from
     # a nominal pose".
     def payload(spec):
-        body = spec.body("trunk").add_body(name="payload", pos=[-0.05, 0.0, 0.05])
+        body = spec.body("trunk").add_body(name="payload", pos=[-0.1, 0.0, 0.1])
+        body.ipos, body.iquat = [0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]  # MjSpec leaves them unset
         body.mass, body.inertia, body.explicitinertial = 3.5, [1e-3] * 3, True
 
     collapsed = simulate(LogSpec(seconds=4.0, episodes=1, seed=2, noise=1.0, feedback=1.0, spec_edit=payload))
