@@ -39,7 +39,7 @@ import numpy as np
 from acn.datasets import checks
 from acn.datasets.measurements import Measurements
 from acn.models.diagnose.accelerometer import Accelerometer, read_accelerometer
-from acn.models.diagnose.add import Added, Chain, add_effect, auto, longest_removed, names, refine_chain
+from acn.models.diagnose.add import Added, Chain, add_effect, auto, fit_over_steps, longest_removed, names, refine_chain
 from acn.models.diagnose.compare import Comparison, compare, floor_of, informative_horizon
 from acn.models.diagnose.pairing import action_row
 from acn.models.diagnose.problem import DiagnoseConfig, Problem, corrected, prepare
@@ -278,6 +278,12 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
         for chain in chains:
             chain.steps = [swap.get(id(s), s) for s in chain.steps]
         added = refined
+    if added:
+        say("fitting the effects over several steps", None)
+        over = fit_over_steps(problem, added, cfg, judge_rows, residual)
+        for chain in chains:
+            chain.steps = [over[-1] if s is added[-1] else s for s in chain.steps]
+        added = over
     if given is None and accelerometer.by_model and added:  # the integration's judgement needs no model
         again = replace(read_accelerometer(problem, added[-1].after.model, judge_rows), again=True)
         if again.kind != accelerometer.kind:

@@ -143,7 +143,7 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
             Parameter("com_y", "m", 0.0, -0.3, 0.3, realistic=(0.0, 0.05), signed=True),
             Parameter("com_z", "m", 0.0, -0.3, 0.3, realistic=(0.0, 0.05), signed=True)),
            _payload, mujoco="trunk mass, ipos and inertia combined with a point mass",
-           pybullet="trunk inertial of the loaded URDF combined with a point mass"),
+           pybullet="trunk inertial of the loaded URDF combined with a point mass", fit_over_steps=True),
     Effect("ground_friction", "foot-ground sliding friction differs",
            (Parameter("value", "1", 1.0, 0.05, 2.0, realistic=(0.2, 0.8)),),
            _ground_friction, mujoco="foot and floor geom friction", pybullet="lateralFriction of the feet"),

@@ -60,6 +60,8 @@ class Effect:
     # feet): its chosen fit is refined with central differences (acn.models.diagnose.add.refine_chain)
     check: Callable[[np.ndarray, Values], str] | None = None  # measured states (N, 43) and fitted values ->
     # why the data contradict them without any simulation ("" where they agree; e.g. by kinematics)
+    fit_over_steps: bool = False  # its final fit is refined on predictions several steps ahead, where start-state
+    # noise biases a one-step fit and no instrument corrects it (acn.models.diagnose.fitting.multistep_refit)
 
     @property
     def per_joint(self) -> bool:
