@@ -589,9 +589,9 @@ def test_noisy_joint_readings_do_not_bias_the_fitted_friction(noisy_logs):
 
 
 def test_noisy_start_states_do_not_make_a_payload_light(tmp_path):
-    """Least squares from noisy start states fits a payload light on a pacing robot (the noise
-    moves the predicted contact forces, and a lighter trunk follows them); the refit on
-    predictions five steps ahead does not (``fitting.multistep_refit``)."""
+    """Least squares from noisy start states fits a payload light on a pacing robot (errors in
+    variables, through the contact forces); the refit on predictions five steps ahead does not
+    (``fitting.multistep_refit``)."""
     from acn.datasets.importer import ImportConfig, import_log
     from acn.models.diagnose.fitting import fit_effect, multistep_refit
     from acn.models.diagnose.problem import prepare

@@ -149,7 +149,7 @@ def refine_chain(problem: Problem, before: Comparison, steps: list[Added], cfg: 
 
 
 def fit_over_steps(problem: Problem, steps: list[Added], cfg: DiagnoseConfig, judge_rows: np.ndarray,
-                   base_residual: np.ndarray) -> list[Added]:
+                   base_residual: np.ndarray, progress=None) -> list[Added]:
     """``steps`` (the effects the diagnosis added, in order) with the last one's final fit, and
     every few-parameter effect refitted with it, refined on predictions several steps ahead
     (``fitting.multistep_refit``), where the model holds an effect whose one-step fit the noise in
@@ -166,6 +166,8 @@ def fit_over_steps(problem: Problem, steps: list[Added], cfg: DiagnoseConfig, ju
     refit = refittable(last.before.model)
     if not (last.fit.effect.fit_over_steps or any(get_effect(n).fit_over_steps for n in refit)):
         return steps
+    if progress:
+        progress(f"fitting {last.name} again over several steps", None)
     rows = problem.sample(problem.fit_rows, cfg.fit_rows, salt=5)  # ``_final_fit``'s rows
     rows = rows if len(rows) > len(rank_rows(problem, cfg)) else rank_rows(problem, cfg)
     fit = multistep_refit(problem, last.fit, rows, refit=refit)

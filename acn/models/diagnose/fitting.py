@@ -458,10 +458,9 @@ def instrumental_refit(problem: Problem, base: Model, fit: EffectFit, rows: np.n
                      contradicted=_contradiction(problem, fit.effect, values))
 
 
-
 MULTISTEP_ROWS = 600  # start rows of the multi-step refit (each predicted ``multistep_horizon`` steps)
 MULTISTEP_ITER = 18   # its iterations: mass and centre of mass converge slowly together (measured: 6 left the
-# payload of a pace log 12-18 % light, 18 within 5 %, 30 no closer)
+# payload of a pace log 11-18 % light, 18 within 5 %, 30 no closer)
 
 
 def multistep_refit(problem: Problem, fit: EffectFit, rows: np.ndarray, refit: tuple[str, ...] = ()) -> EffectFit:
@@ -469,9 +468,9 @@ def multistep_refit(problem: Problem, fit: EffectFit, rows: np.ndarray, refit: t
     refined from its values on predictions ``multistep_horizon`` diagnosis steps ahead.
 
     The one-step prediction starts from the MEASURED s_t, and its noise (velocities above all)
-    moves the contact forces the model predicts; least squares then prefers a trunk that follows
-    them less, and fits a payload light. Over several steps the payload's signal grows while the
-    start's noise enters once. Instruments (``instrumental_refit``) fail for the trunk: contacts
+    moves the contact forces the model predicts: an errors-in-variables bias, measured as a
+    payload fitted light. Over several steps the payload's signal grows while the start's noise
+    enters once. Instruments (``instrumental_refit``) fail for the trunk: contacts
     switch between t - 2 and t + 2. Measured (typical sensor noise, 4 x 10 s logs, the payload's
     mass): a pace log with 1.82 kg, 1.14 one-step -> 1.79 over 5 steps; 3.5 kg behind the trunk
     3.37 -> 3.55. ``fit`` is kept where the refit makes the one-step prediction of ``rows`` worse

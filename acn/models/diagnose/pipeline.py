@@ -39,7 +39,8 @@ import numpy as np
 from acn.datasets import checks
 from acn.datasets.measurements import Measurements
 from acn.models.diagnose.accelerometer import Accelerometer, read_accelerometer
-from acn.models.diagnose.add import Added, Chain, add_effect, auto, fit_over_steps, longest_removed, names, refine_chain
+from acn.models.diagnose.add import (Added, Chain, add_effect, auto, fit_over_steps, longest_removed, names,
+                                     refine_chain)
 from acn.models.diagnose.compare import Comparison, compare, floor_of, informative_horizon
 from acn.models.diagnose.pairing import action_row
 from acn.models.diagnose.problem import DiagnoseConfig, Problem, corrected, prepare
@@ -279,8 +280,7 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
             chain.steps = [swap.get(id(s), s) for s in chain.steps]
         added = refined
     if added:
-        say("fitting the effects over several steps", None)
-        over = fit_over_steps(problem, added, cfg, judge_rows, residual)
+        over = fit_over_steps(problem, added, cfg, judge_rows, residual, say)
         for chain in chains:
             chain.steps = [over[-1] if s is added[-1] else s for s in chain.steps]
         added = over
