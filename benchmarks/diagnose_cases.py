@@ -77,7 +77,7 @@ import numpy as np
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from robot_log import LogSpec, write_log  # noqa: E402
+from robot_log import LogSpec, welded_payload, write_log  # noqa: E402
 
 from acn.datasets.importer import ImportConfig, import_log  # noqa: E402
 from acn.datasets.measurements import load_measurements  # noqa: E402
@@ -103,19 +103,7 @@ def _joints(attr: str, value: float):
     return edit
 
 
-def _payload_at(mass: float, pos: list[float], inertia: float = 1e-3):
-    """A separate body welded to the trunk at ``pos`` (m, trunk frame), its centre of mass at its
-    origin (acn combines it into the trunk's inertia). ``ipos`` must be set: MjSpec leaves it
-    unset, and MuJoCo 4.0 then puts the centre of mass at ``pos`` in the body's own frame, twice
-    ``pos`` from the trunk (before stop 48 every payload case stated half its offset)."""
-    def edit(spec):
-        body = spec.body("trunk").add_body(name="payload", pos=pos)
-        body.ipos, body.iquat = [0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]
-        body.mass, body.inertia, body.explicitinertial = mass, [inertia] * 3, True
-    return edit
-
-
-_payload = _payload_at(2.0, [0.08, -0.04, 0.06], inertia=1e-4)
+_payload = welded_payload(2.0, [0.08, -0.04, 0.06], inertia=1e-4)
 
 
 def _soft_ground(timeconst: float):
@@ -173,7 +161,7 @@ OTHER = {
     "strength 1.2": ({"strength": 1.2}, "effect", "motor_strength", "scale", 1.2),
     "kp x1.3": ({"gains": (1.3, 1.0)}, "effect", "pd_gains", "kp_scale", 1.3),
     "latency 25 ms": ({"latency_steps": 25}, "effect", "actuator_latency", "seconds", 0.025),
-    "payload 3.5 kg": ({"spec_edit": _payload_at(3.5, [-0.1, 0.0, 0.1])}, "effect", "payload", "mass", 3.5),
+    "payload 3.5 kg": ({"spec_edit": welded_payload(3.5, [-0.1, 0.0, 0.1])}, "effect", "payload", "mass", 3.5),
     "friction 0.15": ({"spec_edit": _joints("frictionloss", 0.15)}, "effect", "joint_friction", "value", 0.15),
     "armature 0.01": ({"spec_edit": _joints("armature", 0.01)}, "effect", "armature", "value", 0.01),
     "floor 0.5 (pace)": ({"spec_edit": _floor(0.5), "controller": "pace"}, "effect", "ground_friction", "value", 0.5),

@@ -84,6 +84,19 @@ class LogSpec:
     drop: tuple[str, ...] = ()           # channels left out of the log
 
 
+def welded_payload(mass: float, pos: list[float], inertia: float = 1e-3) -> Callable[[mujoco.MjSpec], None]:
+    """A ``LogSpec.spec_edit``: a separate body of ``mass`` kg welded to the trunk at ``pos`` (m, trunk
+    frame), its centre of mass at its origin, ``inertia`` kg m^2 about each axis (acn's ``payload``
+    combines such a mass into the trunk's inertia). ``ipos`` must be set: MjSpec leaves it unset,
+    and MuJoCo 4.0 then puts the centre of mass at ``pos`` in the body's own frame, twice ``pos``
+    from the trunk (before stop 48 every benchmark payload stated half its offset)."""
+    def edit(spec: mujoco.MjSpec) -> None:
+        body = spec.body("trunk").add_body(name="payload", pos=pos)
+        body.ipos, body.iquat = [0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]
+        body.mass, body.inertia, body.explicitinertial = mass, [inertia] * 3, True
+    return edit
+
+
 def _spec(s: LogSpec) -> mujoco.MjSpec:
     spec = mujoco.MjSpec.from_file(urdf_path())
     spec.option.timestep = 1.0 / s.physics_hz

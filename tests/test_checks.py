@@ -13,7 +13,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pacsv
 import pytest
-from robot_log import LogSpec, simulate
+from robot_log import LogSpec, simulate, welded_payload
 from test_import import CONTROL
 
 from acn.datasets.checks import LAG_Z, check, lag
@@ -189,12 +189,8 @@ def test_a_robot_that_collapses_folding_its_legs_past_their_limits_has_the_right
     # while the robot is upright, where a joint with its median inside its range is a joint pressed
     # past a soft limit, not a convention; before, this log read "another zero?" and "offsets from
     # a nominal pose".
-    def payload(spec):
-        body = spec.body("trunk").add_body(name="payload", pos=[-0.1, 0.0, 0.1])
-        body.ipos, body.iquat = [0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]  # MjSpec leaves them unset
-        body.mass, body.inertia, body.explicitinertial = 3.5, [1e-3] * 3, True
-
-    collapsed = simulate(LogSpec(seconds=4.0, episodes=1, seed=2, noise=1.0, feedback=1.0, spec_edit=payload))
+    collapsed = simulate(LogSpec(seconds=4.0, episodes=1, seed=2, noise=1.0, feedback=1.0,
+                                 spec_edit=welded_payload(3.5, [-0.1, 0.0, 0.1])))
     calves = np.column_stack([collapsed[f"{leg}_calf_pos"] for leg in ("FR", "FL", "RR", "RL")])
     assert collapsed["base_pos_z"][-1] < 0.1 and (calves < -2.75).mean(0).max() > 0.5
     assert check(_episodes(collapsed), 1 / 50) == []

@@ -8,7 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from robot_log import LogSpec, write_log
+from robot_log import LogSpec, welded_payload, write_log
 
 from acn.datasets.checks import repeated_transitions
 from acn.datasets.measurements import load_measurements
@@ -596,13 +596,8 @@ def test_noisy_start_states_do_not_make_a_payload_light(tmp_path):
     from acn.models.diagnose.fitting import fit_effect, multistep_refit
     from acn.models.diagnose.problem import prepare
 
-    def payload(spec):  # 1.82 kg welded to the trunk at (-3.1, -5.2, 0.6) cm
-        body = spec.body("trunk").add_body(name="payload", pos=[-0.0308, -0.0518, 0.0056])
-        body.ipos, body.iquat = [0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]  # MjSpec leaves them unset
-        body.mass, body.inertia, body.explicitinertial = 1.82, [1e-3] * 3, True
-
     write_log(tmp_path / "log.csv", LogSpec(noise=1.0, seed=4809, seconds=10.0, episodes=2, controller="pace",
-                                            spec_edit=payload))
+                                            spec_edit=welded_payload(1.82, [-0.0308, -0.0518, 0.0056])))
     path, _ = import_log(tmp_path / "log.csv", tmp_path / "log", ImportConfig(50, 60.0, 1.5, 33.5))
     cfg = DiagnoseConfig(horizons=(1, 5), fit_rows=1500)
     problem = prepare(load_measurements(path), Model.parse("mujoco"), cfg)
