@@ -26,7 +26,7 @@ the effects are chosen with forward differences and only the chosen ones are ref
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from mujoco import minimize
@@ -390,6 +390,14 @@ IV_LAG = 2         # diagnosis steps between a row and its instrument rows (nois
 IV_MAX_COST = 1.05  # the instrumental fit may cost at most this much more than least squares (pseudo-Huber)
 
 
+def _costs_too_much(before: np.ndarray, after: np.ndarray) -> bool:
+    """Whether a refit's residuals ``after`` cost more than ``IV_MAX_COST`` x the fit's ``before``,
+    under the pseudo-Huber norm 3 robust sigmas of ``before`` wide: removing a noise bias costs a
+    few per cent of fit, more is an estimate gone astray (``instrumental_refit``, ``multistep_refit``)."""
+    soft = SoftL1(3.0 * 1.4826 * float(np.median(np.abs(before))) or 1e-9)
+    return soft.value(after) > IV_MAX_COST * soft.value(before)
+
+
 def instrumental_refit(problem: Problem, base: Model, fit: EffectFit, rows: np.ndarray,
                        refit: tuple[str, ...] = (), iterations: int = 3, central: bool = False) -> EffectFit:
     """Correct a least-squares fit of a joint effect for noise in the measured start states.
@@ -443,8 +451,7 @@ def instrumental_refit(problem: Problem, base: Model, fit: EffectFit, rows: np.n
         z = z_new
     # The instrumental estimate's uncertainty: sandwich covariance over blocks of 10 rows.
     r = objective(z.reshape(-1, 1))[:, 0][:half].reshape(len(rows), -1)
-    soft = SoftL1(delta)
-    if soft.value(r.ravel()) > IV_MAX_COST * soft.value(r0):
+    if _costs_too_much(r0, r.ravel()):
         return fit  # removing a noise bias costs a few per cent of fit; more is an equation gone astray
     g = (instrument.reshape(len(rows), -1, len(z)) * (w.reshape(len(rows), -1) * r)[:, :, None]).sum(1)
     blocks = g[: len(g) // 10 * 10].reshape(-1, 10, len(z)).sum(1)
@@ -488,12 +495,9 @@ def multistep_refit(problem: Problem, fit: EffectFit, rows: np.ndarray, refit: t
     one_step = Objective(problem, fit.model, _together(problem, fit.model, fit.effect, fit.granularity, refit), rows,
                          budget=np.inf)
     r = one_step(np.stack([fit.x, ahead.x], axis=1) / one_step.scale[:, None])
-    soft = SoftL1(3.0 * 1.4826 * float(np.median(np.abs(r[:, 0]))) or 1e-9)
-    if soft.value(r[:, 1]) > IV_MAX_COST * soft.value(r[:, 0]):
+    if _costs_too_much(r[:, 0], r[:, 1]):
         return fit
-    return EffectFit(fit.effect, fit.granularity, ahead.values, ahead.names, ahead.x, ahead.stderr, ahead.model,
-                     cost=fit.cost, evaluations=fit.evaluations + ahead.evaluations + one_step.evaluations,
-                     nominal=fit.nominal, contradicted=ahead.contradicted)
+    return replace(ahead, cost=fit.cost, evaluations=fit.evaluations + ahead.evaluations + one_step.evaluations)
 
 
 def multistep_horizon(problem: Problem) -> int | None:

@@ -197,6 +197,14 @@ def noise_fitted(floor: np.ndarray, residual: np.ndarray, ranking: list[Candidat
     return np.minimum(before, floor + noise)
 
 
+def _swapped(chains: list[Chain], steps: list[Added], new: list[Added]) -> list[Added]:
+    """``new`` (the steps that stand for ``steps``, in order), with every chain's steps swapped alike."""
+    swap = {id(a): b for a, b in zip(steps, new)}
+    for chain in chains:
+        chain.steps = [swap.get(id(s), s) for s in chain.steps]
+    return new
+
+
 def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None, add: list[str] = (),
              automatic: bool = False, progress=None, check_data: bool = True,
              accelerometer: Accelerometer | None = None) -> Diagnosis:
@@ -274,16 +282,8 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
         added += steps
     if any(a.fit.effect.moves_start for a in added):
         say("refining the fits of effects that move the start state", None)
-        refined = refine_chain(problem, before, added, cfg, judge_rows, residual)
-        swap = {id(a): b for a, b in zip(added, refined)}
-        for chain in chains:
-            chain.steps = [swap.get(id(s), s) for s in chain.steps]
-        added = refined
-    if added:
-        over = fit_over_steps(problem, added, cfg, judge_rows, residual, say)
-        for chain in chains:
-            chain.steps = [over[-1] if s is added[-1] else s for s in chain.steps]
-        added = over
+        added = _swapped(chains, added, refine_chain(problem, before, added, cfg, judge_rows, residual))
+    added = _swapped(chains, added, fit_over_steps(problem, added, cfg, judge_rows, residual, say))
     if given is None and accelerometer.by_model and added:  # the integration's judgement needs no model
         again = replace(read_accelerometer(problem, added[-1].after.model, judge_rows), again=True)
         if again.kind != accelerometer.kind:
