@@ -73,6 +73,18 @@ def position_targets(actions: np.ndarray, q: np.ndarray) -> np.ndarray:
     return np.where(kp > 0, u + np.divide(f, kp, out=np.zeros_like(f), where=kp > 0), q)
 
 
+def history_window(actions: np.ndarray, previous: np.ndarray | None, need: int) -> np.ndarray:
+    """(N, need + K, width): ``need`` previous actions then the K actions of each of N rows (the
+    window ``Actuation.commands`` reads). Unknown earlier actions are taken equal to the oldest
+    one known (or to the first action)."""
+    n, width = len(actions), actions.shape[-1]
+    prev = np.empty((n, 0, width)) if previous is None else np.asarray(previous, float).reshape(n, -1, width)
+    if prev.shape[1] < need:
+        fill = prev[:, :1] if prev.shape[1] else actions[:, :1]
+        prev = np.concatenate([np.repeat(fill, need - prev.shape[1], axis=1), prev], axis=1)
+    return np.concatenate([prev[:, prev.shape[1] - need:], actions], axis=1)
+
+
 @dataclass(frozen=True)
 class Actuation:
     """The resolved control law of one model; per-joint (12,) arrays, see module docstring."""

@@ -23,7 +23,7 @@ from typing import Sequence
 import numpy as np
 
 from acn.toolkit import parallel
-from acn.toolkit.actuation import Actuation
+from acn.toolkit.actuation import Actuation, history_window
 from acn.toolkit.backends import SimConfig, SimulationDiverged, make_backend
 from acn.toolkit.state import ACTION_DIM, SLICES, STATE_DIM
 
@@ -37,17 +37,6 @@ class Prediction:
     state: np.ndarray     # (N, K, 43) s_{t+1} .. s_{t+K}; contacts NaN; NaN rows where diverged
     effort: np.ndarray    # (N, K, 12) mean applied joint torque over each control step, N m
     diverged: np.ndarray  # (N,) bool: the simulation blew up (non-finite or absurd state)
-
-
-def _history_window(actions: np.ndarray, previous: np.ndarray | None, need: int) -> np.ndarray:
-    """(N, need + K, width): ``need`` previous actions then the K actions. Unknown earlier actions
-    are taken equal to the oldest one known (or to the first action)."""
-    n, width = len(actions), actions.shape[-1]
-    prev = np.empty((n, 0, width)) if previous is None else np.asarray(previous, float).reshape(n, -1, width)
-    if prev.shape[1] < need:
-        fill = prev[:, :1] if prev.shape[1] else actions[:, :1]
-        prev = np.concatenate([np.repeat(fill, need - prev.shape[1], axis=1), prev], axis=1)
-    return np.concatenate([prev[:, prev.shape[1] - need:], actions], axis=1)
 
 
 class Resimulator:
@@ -103,7 +92,7 @@ class Resimulator:
             return out
         for m in np.unique(index):
             rows = np.flatnonzero(index == m)
-            window = _history_window(actions[rows], None if previous is None else np.asarray(previous)[rows],
+            window = history_window(actions[rows], None if previous is None else np.asarray(previous)[rows],
                                      self.actuation[m].history)
             self._run_backend(int(m), rows, states[rows], window, out)
         return out
@@ -132,7 +121,7 @@ class Resimulator:
         for m in np.unique(index):  # per-physics-step commands carry each model's latency
             rows = np.flatnonzero(index == m)
             act = self.actuation[m]
-            window = _history_window(actions[rows], None if previous is None else np.asarray(previous)[rows],
+            window = history_window(actions[rows], None if previous is None else np.asarray(previous)[rows],
                                      act.history)
             commands[rows] = act.commands(window)
         native = np.array([a.native for a in self.actuation])[index]

@@ -41,7 +41,7 @@ import numpy as np
 
 from acn.errors import UserError
 from acn.toolkit import frames
-from acn.toolkit.actuation import HYBRID_PARTS, Actuation
+from acn.toolkit.actuation import HYBRID_PARTS, Actuation, history_window
 from acn.toolkit.robot import GRAVITY, STANCE, STANDING_HEIGHT, ModelParams, per_joint
 from acn.toolkit.rotations import quat_to_matrix, quat_to_rpy, rpy_to_quat
 from acn.toolkit.state import ACTION_DIM, DYNAMIC_GROUPS, FOOT_NAMES, NUM_JOINTS, SLICES, STATE_DIM
@@ -278,11 +278,7 @@ class Backend(ABC):
         hist = self.actuation.history
         if not self.actuation.delayed and not self.actuation.hybrid:
             return np.broadcast_to(action, (self.config.substeps, ACTION_DIM))
-        past = self._history if self._history is not None else np.empty((0, len(action)))
-        if len(past) < hist:  # earlier actions unknown: taken equal to the oldest one known
-            fill = past[0] if len(past) else action
-            past = np.concatenate([np.repeat(fill[None], hist - len(past), axis=0), past])
-        window = np.concatenate([past[len(past) - hist:], action[None]])
+        window = history_window(action[None, None], None if self._history is None else self._history[None], hist)[0]
         self._history = window[1:]
         return self.actuation.commands(window)
 
