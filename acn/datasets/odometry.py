@@ -36,7 +36,7 @@ slip:
   instant (``SimConfig.imu_acc`` "instant", MuJoCo's sensor), by the trapezoid rule over the
   step's two ends, which misses what a landing foot does between them: so that step's change
   is trusted less, by the trapezoid's error where the acceleration switches between the two
-  samples' values at a uniformly distributed moment (``change_spread``). Without an
+  samples' values at a uniformly distributed moment (``velocity_change``'s spread). Without an
   accelerometer, a robust smoother of the legs' estimates;
 - ``base_pos_x``, ``base_pos_y``: the world-frame velocity integrated along each episode from 0
   (on flat ground where the robot stands carries no dynamics).
@@ -48,7 +48,7 @@ trot, height 2.5 / 4.5 mm (estimated on a rigid ground: MuJoCo's feet sink that 
 controllers scrape the feet along the ground, with sensor noise, height 2-3 / 5-7 mm, velocity
 6-7 / 10-11 cm/s (spread 36-61 cm/s). With MuJoCo's accelerometer on those logs (an instant:
 ``--accelerometer sensor``), velocity 5.7-6.5 / 9.6-13.9 cm/s without noise and 7.5-8.3 /
-12.5-15.5 cm/s with it (sines-pace; without ``change_spread`` 6.3-6.7 / 11.5-12.6 and 8.1-8.2 /
+12.5-15.5 cm/s with it (sines-pace; without that spread 6.3-6.7 / 11.5-12.6 and 8.1-8.2 /
 14.4-15.2: the sines better, the pace's tail 1.3 and 0.3 cm/s worse); fused as if it were the
 mean, 7-8 / 15-16 and 9 / 17-18. Estimated channels start the simulator and are never compared
 with a prediction.
@@ -187,7 +187,7 @@ def smooth_velocity(legs: np.ndarray, change: np.ndarray | None, dt: float,
 
     (a tridiagonal system: the fixed-interval Kalman smoother of a random walk driven by the
     accelerometer). q = (dt ACCELEROMETER_NOISE)^2, plus ``spread`` (T, 3; m/s, row 0 unused)
-    squared where the change is known less well (``change_spread``); without an accelerometer the
+    squared where the change is known less well (``velocity_change``'s spread); without an accelerometer the
     walk is driven by the trunk's unmeasured acceleration, and q comes from the legs' own changes d
     (variance q + 2 r, lag-one covariance -r, clipped at 3 robust standard deviations). A slipping
     foot gives a leg estimate far from the rest, so w_k are Huber weights of the residual (1.5
@@ -309,27 +309,23 @@ def world_acceleration(specific_force: np.ndarray, rot: np.ndarray) -> np.ndarra
     return np.einsum("nij,nj->ni", rot, specific_force) + np.array([0.0, 0.0, -GRAVITY])
 
 
-def velocity_change(specific_force: np.ndarray, rot: np.ndarray, dt: float, imu_acc: str = "mean") -> np.ndarray:
+def velocity_change(specific_force: np.ndarray, rot: np.ndarray, dt: float,
+                    imu_acc: str = "mean") -> tuple[np.ndarray, np.ndarray]:
     """(T, 3) the world-frame trunk velocity's change from sample k - 1 to k (row 0 unused), m/s,
     from the accelerometer's readings ``specific_force`` (T, 3, trunk frame, m/s^2) of a run of
     consecutive samples, ``rot`` (T, 3, 3) their trunk-to-world rotations: dt x (the world
     acceleration of sample k) where each reading is the mean over the step up to it ("mean"), the
-    trapezoid rule over the step's two ends where it is read at its instant ("instant")."""
-    world = world_acceleration(specific_force, rot)
-    if imu_acc == "instant":
-        world = 0.5 * (world + np.vstack([world[:1], world[:-1]]))
-    return dt * world
+    trapezoid rule over the step's two ends where it is read at its instant ("instant").
 
-
-def change_spread(specific_force: np.ndarray, rot: np.ndarray, dt: float, imu_acc: str = "mean") -> np.ndarray:
-    """(T, 3) the standard deviation of ``velocity_change``'s error beyond the sensor's noise, m/s:
-    0 for the mean reading (exact); for an instant one, the trapezoid's error where the
+    And (T, 3) the standard deviation of the change's error beyond the sensor's noise, m/s (its
+    spread): 0 for the mean reading (exact); for an instant one, the trapezoid's error where the
     acceleration switches from one sample's value to the next's at a uniformly distributed
     moment of the step, dt |a_k - a_(k-1)| / sqrt(12) (a landing foot between two samples)."""
-    if imu_acc != "instant":
-        return np.zeros_like(specific_force)
     world = world_acceleration(specific_force, rot)
-    return dt * np.abs(world - np.vstack([world[:1], world[:-1]])) / np.sqrt(12.0)
+    if imu_acc != "instant":
+        return dt * world, np.zeros_like(world)
+    before = np.vstack([world[:1], world[:-1]])
+    return dt * (0.5 * (world + before)), dt * np.abs(world - before) / np.sqrt(12.0)
 
 
 def fill_trunk(state: np.ndarray, next_state: np.ndarray, linked: np.ndarray, dt: float, missing: list[str],
@@ -361,8 +357,7 @@ def fill_trunk(state: np.ndarray, next_state: np.ndarray, linked: np.ndarray, dt
                 samples = np.vstack([state[a:b + 1], next_state[b:b + 1]])
                 rot = rpy_to_matrices(samples[:, SLICES["base_rpy"]])
                 legs = np.einsum("nij,nj->ni", rot, np.vstack([v_now[a:b + 1], v_next[b:b + 1]]))
-                change = velocity_change(samples[:, acc], rot, dt, imu_acc) if has_acc else None
-                spread = change_spread(samples[:, acc], rot, dt, imu_acc) if has_acc else None
+                change, spread = velocity_change(samples[:, acc], rot, dt, imu_acc) if has_acc else (None, None)
                 body = np.einsum("nji,nj->ni", rot, smooth_velocity(legs, change, dt, spread))
                 state[a:b + 1, cols], next_state[a:b + 1, cols] = body[:-1, axes], body[1:, axes]
     planar = [n for n in ("base_pos_x", "base_pos_y") if n in missing]
