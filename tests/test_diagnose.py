@@ -820,6 +820,28 @@ def test_a_richer_effect_that_wins_only_the_one_step_gives_way_to_a_simpler_one(
     assert prefer_simpler([gains, damping], horizon)[0] is gains       # the gains predict 25 steps better too
 
 
+def test_a_richer_effect_close_at_one_step_keeps_its_place_where_it_predicts_clearly_further():
+    """A payload beside a delay (fresh draw 17: 2.9 kg and 19 ms): after the delay, motor strength
+    removes 92 % of what the payload removes at one step, the payload predicts significantly better
+    (z 4) and lowers the 25-step error by 6 % of it more. Close at one step alone no longer hands
+    the place to the simpler effect; a longer gain within 5 % of the simpler one's still does."""
+    from acn.models.diagnose.rank import LongestHorizon, paired_z, prefer_simpler
+
+    rng = np.random.default_rng(2)
+    payload = ranked_candidate(rng, "payload", 0.0, 0.400, 0.75)
+    strength = ranked_candidate(rng, "motor_strength", 0.9, 0.404, 0.69)
+    residual = 1.01 * payload.judgement.residual_after  # row by row a little worse: z well above 2
+    mse = float(np.mean(residual ** 2))
+    strength.judgement = replace(strength.judgement, mse_after=mse, removed=1.0 - mse, residual_after=residual)
+    assert strength.judgement.removed >= 0.9 * payload.judgement.removed  # close at one step
+    assert paired_z((residual ** 2).mean(1) - (payload.judgement.residual_after ** 2).mean(1)) > 2.0
+    horizon = LongestHorizon(None, Model("mujoco"), DiagnoseConfig(horizons=(1, 25)))  # both gains known: no rollout
+    assert prefer_simpler([payload, strength])[0] is strength           # one step only: close, the simpler one
+    assert prefer_simpler([payload, strength], horizon)[0] is payload   # clearly further: the payload stays
+    strength.longer_gain = 0.71
+    assert prefer_simpler([payload, strength], horizon)[0] is strength  # within 5 %: the simpler one
+
+
 def test_what_a_too_small_effect_removes_counts_as_noise():
     """A significant candidate fitted below 3/4 of the smallest realistic magnitude (a 1 mm trunk
     frame: the open-loop pace log whose robot lies on its back, where the noise in the measured
