@@ -187,9 +187,10 @@ def smooth_velocity(legs: np.ndarray, change: np.ndarray | None, dt: float,
 
     (a tridiagonal system: the fixed-interval Kalman smoother of a random walk driven by the
     accelerometer). q = (dt ACCELEROMETER_NOISE)^2, plus ``spread`` (T, 3; m/s, row 0 unused)
-    squared where the change is known less well (``velocity_change``'s spread); without an accelerometer the
-    walk is driven by the trunk's unmeasured acceleration, and q comes from the legs' own changes d
-    (variance q + 2 r, lag-one covariance -r, clipped at 3 robust standard deviations). A slipping
+    squared where the change is known less well (``velocity_change``'s spread); without an
+    accelerometer the walk is driven by the trunk's unmeasured acceleration, and q comes from the
+    legs' own changes d (variance q + 2 r, lag-one covariance -r, clipped at 3 robust standard
+    deviations). A slipping
     foot gives a leg estimate far from the rest, so w_k are Huber weights of the residual (1.5
     robust standard deviations) and r its robust variance, refitted four times."""
     from scipy.linalg import solve_banded

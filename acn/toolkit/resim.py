@@ -93,7 +93,7 @@ class Resimulator:
         for m in np.unique(index):
             rows = np.flatnonzero(index == m)
             window = history_window(actions[rows], None if previous is None else np.asarray(previous)[rows],
-                                     self.actuation[m].history)
+                                    self.actuation[m].history)
             self._run_backend(int(m), rows, states[rows], window, out)
         return out
 
@@ -122,7 +122,7 @@ class Resimulator:
             rows = np.flatnonzero(index == m)
             act = self.actuation[m]
             window = history_window(actions[rows], None if previous is None else np.asarray(previous)[rows],
-                                     act.history)
+                                    act.history)
             commands[rows] = act.commands(window)
         native = np.array([a.native for a in self.actuation])[index]
         chunk = max(1, MAX_BATCH_FLOATS // (k * sub * (layout.size + width)))
