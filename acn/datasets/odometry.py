@@ -190,9 +190,9 @@ def smooth_velocity(legs: np.ndarray, change: np.ndarray | None, dt: float,
     squared where the change is known less well (``velocity_change``'s spread); without an
     accelerometer the walk is driven by the trunk's unmeasured acceleration, and q comes from the
     legs' own changes d (variance q + 2 r, lag-one covariance -r, clipped at 3 robust standard
-    deviations). A slipping
-    foot gives a leg estimate far from the rest, so w_k are Huber weights of the residual (1.5
-    robust standard deviations) and r its robust variance, refitted four times."""
+    deviations). A slipping foot gives a leg estimate far from the rest, so w_k are Huber
+    weights of the residual (1.5 robust standard deviations) and r its robust variance,
+    refitted four times."""
     from scipy.linalg import solve_banded
 
     n = len(legs)
