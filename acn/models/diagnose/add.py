@@ -108,11 +108,11 @@ def choose_fit(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, j
     return fit, judge(problem, fit.model, judge_rows, base_residual)
 
 
-def final_rows(problem: Problem, cfg: DiagnoseConfig) -> np.ndarray:
+def final_rows(problem: Problem, cfg: DiagnoseConfig) -> tuple[np.ndarray, bool]:
     """The rows an added effect's final fit is made on: ``cfg.fit_rows`` of the fitting rows, or the
-    ranking's rows where those are not fewer."""
+    ranking's rows where those are not fewer; and whether they are more than the ranking's."""
     rows, ranked = problem.sample(problem.fit_rows, cfg.fit_rows, salt=5), rank_rows(problem, cfg)
-    return rows if len(rows) > len(ranked) else ranked
+    return (rows, True) if len(rows) > len(ranked) else (ranked, False)
 
 
 def _final_fit(problem: Problem, model: Model, fit: EffectFit, cfg: DiagnoseConfig, again: bool = False,
@@ -120,8 +120,8 @@ def _final_fit(problem: Problem, model: Model, fit: EffectFit, cfg: DiagnoseConf
     """``fit`` refitted on ``cfg.fit_rows`` rows from its values at its granularity (where those are
     more than the ranking's rows it was fitted on, or ``again``: on another base model), then the
     instrumental refit on the same rows; ``central``: both with central differences."""
-    rows = final_rows(problem, cfg)
-    if again or len(rows) > len(rank_rows(problem, cfg)):
+    rows, more = final_rows(problem, cfg)
+    if again or more:
         fit = fit_effect(problem, model, fit.effect, fit.granularity, rows, start=fit.values, max_iter=6,
                          refit=refittable(model), central=central)
     return instrumental_refit(problem, model, fit, rows, refit=refittable(model), central=central)
@@ -173,7 +173,7 @@ def fit_over_steps(problem: Problem, steps: list[Added], cfg: DiagnoseConfig, ju
         return steps
     if progress:
         progress(f"fitting {last.name} again over several steps", None)
-    fit = multistep_refit(problem, last.fit, final_rows(problem, cfg), refit=refit)
+    fit = multistep_refit(problem, last.fit, final_rows(problem, cfg)[0], refit=refit)
     if fit is last.fit:
         return steps
     residual = steps[-2].judgement.residual_after if len(steps) > 1 else base_residual
