@@ -784,7 +784,9 @@ def ranked_candidate(rng: np.random.Generator, name: str, value: float, error: f
 
 def test_candidates_one_step_cannot_tell_apart_are_ordered_by_the_longer_prediction():
     """Tied at one step (z < 2 between them), the one that lowers the longest-horizon error by
-    5 % more goes first; a clear one-step winner, a richer effect or a small longer gain do not move."""
+    5 % more goes first; a clear one-step winner, a richer effect no better at one step or a small
+    longer gain do not move. A richer effect behind only by its price is tied too, unless it
+    reproduces the best."""
     from acn.models.diagnose.rank import prefer_longer, tied_with_best
 
     rng = np.random.default_rng(0)
@@ -799,8 +801,21 @@ def test_candidates_one_step_cannot_tell_apart_are_ordered_by_the_longer_predict
     damping.longer_gain = 0.71
     worse = candidate("joint_damping", 0.5, 0.60, 0.71)      # clearly worse at one step: not tied
     assert tied_with_best([friction, worse]) == [] and prefer_longer([friction, worse])[0] is friction
-    gains = candidate("pd_gains", 1.3, 0.501, 0.9)           # more parameters than the best: not tied
+    gains = candidate("pd_gains", 1.3, 0.501, 0.9)           # more parameters, no better at one step: not tied
     assert prefer_longer([friction, gains])[0] is friction
+    # More parameters, removing as much at one step, behind only by their price (fresh draw 7: a
+    # payload behind motor strength after a torque limit): tied, and first if clearly further ...
+    strength = candidate("motor_strength", 0.9, 0.500, 0.41)
+    payload = candidate("payload", 0.0, 0.500, 0.50)
+    payload.judgement = replace(payload.judgement, removed=strength.judgement.removed)
+    assert [c.name for c in tied_with_best([strength, payload])] == ["motor_strength", "payload"]
+    assert prefer_longer([strength, payload])[0] is payload
+    payload.longer_gain = 0.45                                # within 5 %: the simpler one stays first
+    assert prefer_longer([strength, payload])[0] is strength
+    # ... but not where the richer one reproduces the best (both PD gains scaled alike are strength)
+    gains = candidate("pd_gains", 0.9, 0.500, 0.50)
+    gains.judgement = replace(gains.judgement, removed=strength.judgement.removed + 0.01)
+    assert tied_with_best([strength, gains]) == [] and prefer_longer([strength, gains])[0] is strength
 
 
 def test_a_richer_effect_that_wins_only_the_one_step_gives_way_to_a_simpler_one():

@@ -62,6 +62,8 @@ class Effect:
     # why the data contradict them without any simulation ("" where they agree; e.g. by kinematics)
     fit_over_steps: bool = False  # its final fit is refined on predictions several steps ahead, where start-state
     # noise biases a one-step fit and no instrument corrects it (acn.models.diagnose.fitting.multistep_refit)
+    reproduces: tuple[str, ...] = ()  # effects it equals at some values of its parameters while the joint PD is
+    # unsaturated (pd_gains: motor_strength at equal kp and kd scales); acn.models.diagnose.rank.tied_with_best
 
     @property
     def per_joint(self) -> bool:
