@@ -320,3 +320,28 @@ def test_the_stance_feet_locate_the_measured_frame():
     trunk = frames.state_in_trunk(np.array(states), frame)
     assert "further from the ground" in check(trunk, {k: -v for k, v in named.items()})
     assert "further from the ground" in check(trunk, {**dict.fromkeys(named, 0.0), "z": 0.01})
+
+
+@pytest.mark.parametrize("backend", ["mujoco", "pybullet"])
+def test_the_pd_gains_reproduce_strength_and_damping_where_the_pd_is_unsaturated(backend):
+    """``Effect.reproduces`` is physics, not a label: both gains scaled by s are motor strength s,
+    and a derivative gain raised by c / kd is joint damping c (the PD's velocity target is 0), on
+    the trot's first ten steps (torques below the limit scaled by 0.8; later they differ: the scaled
+    force range clips). PyBullet applies damping in its control law, MuJoCo integrates joint
+    damping implicitly: a few per cent apart. The ranking leans on it (``rank.tied_with_best``)."""
+    assert get_effect("pd_gains").reproduces == ("motor_strength", "joint_damping")
+    kd = SimConfig().kd
+
+    def moved(a: ModelParams, b: ModelParams) -> float:
+        return float(np.abs(_run(backend, a, steps=10) - _run(backend, b, steps=10))[:36].max())
+
+    def params(name: str, values) -> ModelParams:
+        out = ModelParams()
+        get_effect(name).apply(out, values)
+        return out
+
+    strength, gains = params("motor_strength", {"scale": 0.8}), params("pd_gains", {"kp_scale": 0.8, "kd_scale": 0.8})
+    damping, kd_up = params("joint_damping", {"value": 0.5}), params("pd_gains", {"kp_scale": 1.0, "kd_scale": 1 + 0.5 / kd})
+    assert moved(strength, ModelParams()) > 1e-2 and moved(damping, ModelParams()) > 1e-3
+    assert moved(strength, gains) < 1e-6, moved(strength, gains)
+    assert moved(damping, kd_up) < 0.1 * moved(damping, ModelParams()), (moved(damping, kd_up), moved(damping, ModelParams()))

@@ -124,6 +124,8 @@ class Effect:
             nominal = f"control setting {p.from_control}" if p.from_control else f"{p.nominal:g}"
             lines.append(f"    {p.name} [{p.unit}]{' per joint' if p.per_joint else ''}: nominal {nominal}, "
                          f"bounds {p.lower:g}..{p.upper:g}{real}")
+        if self.reproduces:
+            lines.append(f"    reproduces {', '.join(self.reproduces)} at some of its values (unsaturated PD)")
         return "\n".join(lines)
 
 
