@@ -155,6 +155,8 @@ def test_a_richer_effect_gives_way_to_a_simpler_one_beside_the_others(tmp_path):
     cfg = replace(FAST, finest="shared", candidates=("pd_gains", "joint_friction", "motor_strength", "joint_damping"))
     d = diagnose(data, nominal, cfg, add=["pd_gains", "joint_friction"])
     assert [a.name for a in d.added] == ["pd_gains", "joint_friction"]
+    # the report reads the gains in the words of the effects they reproduce (Effect.alike)
+    assert "while the PD is unsaturated, the same physics as: motor_strength" in terminal(d), terminal(d)
     residual = d.problem.residual_of(nominal.sim_config(d.problem.control), d.judge_rows)
     chain = revisit(d.problem, d.before, cfg, d.judge_rows, residual, d.added)
     assert [a.name for a in chain] == ["motor_strength", "joint_friction"]

@@ -345,3 +345,21 @@ def test_the_pd_gains_reproduce_strength_and_damping_where_the_pd_is_unsaturated
     assert moved(strength, ModelParams()) > 1e-2 and moved(damping, ModelParams()) > 1e-3
     assert moved(strength, gains) < 1e-6, moved(strength, gains)
     assert moved(damping, kd_up) < 0.1 * moved(damping, ModelParams()), (moved(damping, kd_up), moved(damping, ModelParams()))
+
+
+def test_the_pd_gains_are_read_in_the_words_of_the_effects_they_reproduce():
+    """``Effect.alike``: kp x0.8, kd x1.2 is motor strength 0.8 + joint damping 0.4 kd, and kp x0.8
+    + damping 0.2 kd, as the report says; the first reading re-simulates to the same states."""
+    alike = get_effect("pd_gains").alike
+    kd = SimConfig().kd
+    said = alike({"kp_scale": 0.8, "kd_scale": 1.2}, kd)
+    assert said == f"motor_strength 0.8 + joint_damping {0.4 * kd:.3g} N m s/rad; kp x0.8 alone + joint_damping " \
+                   f"{0.2 * kd:.3g} N m s/rad", said
+    assert alike({"kp_scale": 0.8, "kd_scale": 0.81}, kd) == "motor_strength 0.8"
+    assert alike({"kp_scale": 0.8, "kd_scale": 0.5}, kd) == "" and alike({"kp_scale": 0.8, "kd_scale": 1.2}, 0.0) == ""
+    gains, both = ModelParams(), ModelParams()
+    get_effect("pd_gains").apply(gains, {"kp_scale": 0.8, "kd_scale": 1.2})
+    get_effect("motor_strength").apply(both, {"scale": 0.8})
+    get_effect("joint_damping").apply(both, {"value": 0.4 * kd})
+    apart = np.abs(_run("pybullet", gains, steps=10) - _run("pybullet", both, steps=10))[:36].max()
+    assert apart < 1e-6, apart

@@ -30,7 +30,9 @@ JSON keys (the machine-readable contract):
   check's horizon, ``step.check_horizon``, it removes; null where not checked: ``rank.screen``);
 - ``added`` (with ``--add`` / ``--auto``): in order, ``name``, ``params``, ``granularity``,
   ``refines`` (the granularity of an effect added before and fitted finer in this step, else
-  null), ``error_before`` and ``error_after`` (horizon -> group), ``headline_before``,
+  null), ``same_physics_as`` (the effect in the words of those it reproduces while the PD is
+  unsaturated, ``Effect.alike``: PD gains as motor strength and joint damping; else null),
+  ``error_before`` and ``error_after`` (horizon -> group), ``headline_before``,
   ``headline_after``, ``explained``;
 - ``model`` and ``final_model``: the model files before and after;
 - ``closed_loop`` (with ``--closed-loop``, else null): the robot re-run beside the model from
@@ -77,6 +79,21 @@ def _noise_fit_text(a: Added) -> str:
         return ""
     return (f"it raises the open-loop error at the longest horizon ({-g:+.0%}): it may fit what sensor noise in "
             "the measured start states does rather than a physical effect")
+
+
+def _kd(d: Diagnosis) -> float:
+    """The commanded derivative gain, N m s/rad (mean over joints)."""
+    return float(np.mean(np.atleast_1d(d.problem.control.kd)))
+
+
+def _alike(a: Added, kd: float) -> str:
+    return a.fit.effect.alike(a.fit.values, kd) if a.fit.effect.alike else ""
+
+
+def _alike_text(a: Added, kd: float) -> str:
+    """The added effect in the words of those it reproduces (``Effect.alike``), "" if none."""
+    said = _alike(a, kd)
+    return f"while the PD is unsaturated, the same physics as: {said}" if said else ""
 
 
 def _unidentified_text(fit) -> str:
@@ -128,9 +145,9 @@ def _step(a: Added) -> str:
     return f"added {a.name} ({a.fit.granularity})"
 
 
-def _added(a: Added, floor_mse: float) -> dict:
+def _added(a: Added, floor_mse: float, kd: float) -> dict:
     return {"name": a.name, "params": a.fit.effect.to_json(a.fit.values), "granularity": a.fit.granularity,
-            "refines": a.refines or None,
+            "refines": a.refines or None, "same_physics_as": _alike(a, kd) or None,
             "free_parameters": _free(a.fit), "error_before": _errors(a.before), "error_after": _errors(a.after),
             "headline_before": a.before.headline, "headline_after": a.after.headline,
             "explained": a.judgement.explained(floor_mse), "removed": a.judgement.removed}
@@ -153,7 +170,7 @@ def to_json(d: Diagnosis) -> dict:
                         "by_group": {g: round(v, 6) for g, v in groups.items()}},
         "where": d.where,
         "ranking": [_candidate(c, d.floor_mse) for c in d.ranking],
-        "added": [_added(a, d.floor_mse) for a in d.added],
+        "added": [_added(a, d.floor_mse, _kd(d)) for a in d.added],
         "chains": [c.to_json() for c in d.chains],
         "set_aside_on_final_fit": d.set_aside,
         "model": d.before.model.to_json(), "final_model": d.final.model.to_json(),
@@ -223,7 +240,7 @@ def terminal(d: Diagnosis) -> str:
     out += [f"set aside by --auto: {name} {why}" for name, why in d.set_aside.items()]
     for a in d.added:
         out += ["", f"{_step(a)}: {a.fit.effect.to_json(a.fit.values)}"]
-        out += [t for t in [_unidentified_text(a.fit), _noise_fit_text(a)] if t]
+        out += [t for t in [_unidentified_text(a.fit), _noise_fit_text(a), _alike_text(a, _kd(d))] if t]
         out += [f"headline {a.before.headline:.4f} -> {a.after.headline:.4f}", error_table(a.before, a.after)]
     if len(d.chains) > 1:
         out += ["", "chains of effects tried by --auto (started with):"]
@@ -306,7 +323,8 @@ def write_html(d: Diagnosis, path: str | Path) -> Path:
         "</tr>" for c in d.ranking)
     added = "".join(f"<li>{html.escape(_step(a))} {html.escape(_params_text(a.fit))}: headline "
                     f"{a.before.headline:.4f} &rarr; {a.after.headline:.4f}"
-                    + "".join(f"<br><i>{html.escape(t)}</i>" for t in (_unidentified_text(a.fit), _noise_fit_text(a)) if t)
+                    + "".join(f"<br><i>{html.escape(t)}</i>" for t in (_unidentified_text(a.fit), _noise_fit_text(a),
+                                                                       _alike_text(a, _kd(d))) if t)
                     + "</li>"
                     for a in d.added)
     chains = "".join(f"<li>started with {c.start}: <b>{html.escape(c.label)}</b>"

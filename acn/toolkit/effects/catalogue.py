@@ -65,6 +65,25 @@ def _pd_gains(params: ModelParams, values) -> None:
     params.kd_scale = np.asarray(values["kd_scale"], float) * np.ones(NUM_JOINTS)
 
 
+def _pd_gains_alike(values, kd: float) -> str:
+    """PD gains scaled by kp_scale and kd_scale, while the PD is unsaturated (its velocity target 0):
+    torque kp_scale (kp e - kd qdot) - (kd_scale - kp_scale) kd qdot, i.e. motor strength kp_scale
+    and joint damping (kd_scale - kp_scale) kd; or, keeping the gains, kp_scale alone and joint
+    damping (kd_scale - 1) kd. Means over joints; "" where kd is 0 or the derivative gain is below
+    what strength alone gives (no damping is negative)."""
+    kp_s, kd_s = float(np.mean(values["kp_scale"])), float(np.mean(values["kd_scale"]))
+    smallest = 0.75 * CATALOGUE["joint_damping"].parameters[0].realistic[0]  # what rank.too_small calls none
+    damping = (kd_s - kp_s) * kd
+    if kd <= 0 or damping < -smallest:
+        return ""
+    if damping < smallest:
+        return f"motor_strength {kp_s:.3g}"
+    out = f"motor_strength {kp_s:.3g} + joint_damping {damping:.3g} N m s/rad"
+    if (kd_s - 1.0) * kd >= smallest:
+        out += f"; kp x{kp_s:.3g} alone + joint_damping {(kd_s - 1.0) * kd:.3g} N m s/rad"
+    return out
+
+
 def _payload(params: ModelParams, values) -> None:
     params.payload_mass = float(values["mass"])
     params.payload_com = np.array([values["com_x"], values["com_y"], values["com_z"]], dtype=float)
@@ -137,7 +156,7 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
            (Parameter("kp_scale", "1", 1.0, 0.2, 3.0, per_joint=True, realistic=(0.6, 0.9)),
             Parameter("kd_scale", "1", 1.0, 0.0, 5.0, per_joint=True, realistic=(0.5, 0.9))),
            _pd_gains, mujoco="actuator gainprm / biasprm", pybullet="gains of the control law",
-           reproduces=("motor_strength", "joint_damping")),
+           reproduces=("motor_strength", "joint_damping"), alike=_pd_gains_alike),
     Effect("payload", "a mass rigidly attached to the trunk",
            (Parameter("mass", "kg", 0.0, 0.0, 20.0, realistic=(0.5, 4.0)),
             Parameter("com_x", "m", 0.0, -0.3, 0.3, realistic=(0.0, 0.05), signed=True),

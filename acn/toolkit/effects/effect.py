@@ -64,6 +64,8 @@ class Effect:
     # noise biases a one-step fit and no instrument corrects it (acn.models.diagnose.fitting.multistep_refit)
     reproduces: tuple[str, ...] = ()  # effects it equals at some values of its parameters while the joint PD is
     # unsaturated (pd_gains: motor_strength at equal kp and kd scales); acn.models.diagnose.rank.tied_with_best
+    alike: Callable[[Values, float], str] | None = None  # fitted values and the commanded kd (N m s/rad) -> the
+    # same physics in the words of the effects it reproduces ("" where none), for the report
 
     @property
     def per_joint(self) -> bool:
