@@ -50,7 +50,6 @@ def _run(name: str, params: ModelParams, steps: int = 15) -> np.ndarray:
 @pytest.mark.parametrize("name", EFFECT_NAMES)
 def test_every_effect_changes_both_simulators(name):
     """Each effect at a realistic magnitude moves the robot away from the nominal trajectory in both backends."""
-    effect = get_effect(name)
     values = parse_hidden(name, np.random.default_rng(0), SimConfig()).values
     if name == "torque_limit":
         values = {"value": np.full(12, 8.0)}  # the trot's first steps stay below the realistic limits
@@ -58,10 +57,9 @@ def test_every_effect_changes_both_simulators(name):
         values = {"value": 0.05}
     if name == "torque_speed":
         values = {"slope": np.full(12, 8.0)}  # the trot's first steps: torques far below the limit
-    params = ModelParams()
-    effect.apply(params, values)
+    params = _with(**{name: values})
     for backend in ("mujoco", "pybullet"):
-        moved = np.abs(_run(backend, params) - _run(backend, ModelParams()))[:36].max()
+        moved = _apart(backend, params, ModelParams(), steps=15)
         assert moved > 1e-3, (name, backend, moved)
 
 
@@ -347,9 +345,9 @@ def _with(**effects) -> ModelParams:
     return out
 
 
-def _apart(backend: str, a: ModelParams, b: ModelParams) -> float:
-    """Largest difference of the 36 state channels after the trot's first ten steps under ``a`` and ``b``."""
-    return float(np.abs(_run(backend, a, steps=10) - _run(backend, b, steps=10))[:36].max())
+def _apart(backend: str, a: ModelParams, b: ModelParams, steps: int = 10) -> float:
+    """Largest difference of the 36 state channels after the trot's first ``steps`` under ``a`` and ``b``."""
+    return float(np.abs(_run(backend, a, steps=steps) - _run(backend, b, steps=steps))[:36].max())
 
 
 def test_the_pd_gains_are_read_in_the_words_of_the_effects_they_reproduce():
