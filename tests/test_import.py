@@ -353,16 +353,65 @@ def _write_variant(path, rows: dict, how: str) -> None:
     elif how == "date-time stamps":
         stamps = (1.7e9 + rows["timestamp"] + 10 * rows["episode_index"]) * 1e6
         pq.write_table(pa.table({**rows, "timestamp": pa.array(stamps.astype(np.int64), pa.timestamp("us"))}), str(path))
+    else:
+        path.write_text(_csv_text(rows, how), encoding="utf-8-sig" if how == "comments, BOM, CRLF" else "utf-8",
+                        newline="")
+
+
+def _csv_lines(rows: dict) -> list[str]:
+    """``rows`` as the lines of a CSV, header first, names unquoted."""
+    sink = pa.BufferOutputStream()
+    pacsv.write_csv(pa.table(rows), sink, pacsv.WriteOptions(quoting_style="none"))
+    return sink.getvalue().to_pybytes().decode().splitlines()
+
+
+def _csv_text(rows: dict, how: str) -> str:
+    """``rows`` as a CSV some logger wrote: after ``#`` comments with a byte-order mark and CRLF line
+    ends; in a European spreadsheet's format (semicolons, decimal commas); or stopped mid-line."""
+    lines = _csv_lines(rows)
+    if how == "comments, BOM, CRLF":
+        return "\r\n".join(["# logged by walker 2.1", "# kp 60 kd 1.5", "", *lines]) + "\r\n"
+    if how == "decimal commas":
+        return "\n".join(lines[0].replace(",", ";") if i == 0 else line.replace(",", ";").replace(".", ",")
+                         for i, line in enumerate(lines)) + "\n"
+    assert how == "a last line cut off"
+    return "\n".join([*lines[:-1], lines[-1][: len(lines[-1]) // 2]])
 
 
 @pytest.mark.parametrize("how, suffix", [("semicolons", "csv"), ("empty mocap columns", "parquet"),
-                                         ("date-time stamps", "parquet")])
+                                         ("date-time stamps", "parquet"), ("comments, BOM, CRLF", "csv"),
+                                         ("decimal commas", "csv"), ("a last line cut off", "csv")])
 def test_logs_as_other_code_writes_them_import(tmp_path, log_rows, acn, how, suffix):
+    """Each imports whole, to the logged values (float32 storage); a last row cut off mid-line is
+    set aside, named by its line, and the rest imported."""
     _write_variant(tmp_path / f"log.{suffix}", log_rows, how)
     r = acn("import", str(tmp_path / f"log.{suffix}"), "--out", str(tmp_path / "ds"), *CONTROL)
-    assert r.returncode == 0 and "98 transitions in 2 episode(s)" in r.stdout, r.stdout + r.stderr
+    cut = how == "a last line cut off"
+    assert r.returncode == 0 and f"{97 if cut else 98} transitions in 2 episode(s)" in r.stdout, r.stdout + r.stderr
+    assert ("set aside 1 row(s) with another number of fields than the header (line(s) 101)" in r.stdout) == cut
     m = load_measurements(tmp_path / "ds")
     assert m.missing == (list(GROUPS["base_pos"] + GROUPS["base_linvel"]) if how == "empty mocap columns" else [])
+    q = m.state[:49, SLICES["joint_pos"]]
+    np.testing.assert_allclose(q, np.column_stack([log_rows[f"{j}_pos"][:49] for j in JOINT_NAMES]), atol=1e-5)
+
+
+def test_a_csv_of_many_rows_of_another_width_is_refused_a_garbled_row_set_aside(tmp_path, log_rows, acn):
+    """A third of the rows one field longer than the header (another format, not a cut-off row) is
+    refused with one line naming the first; one garbled row inside an episode is set aside and
+    splits the episode there."""
+    lines = _csv_lines(log_rows)
+    wide = [lines[0]] + [f"{line},1" if i % 3 == 0 else line for i, line in enumerate(lines[1:])]
+    (tmp_path / "wide.csv").write_text("\n".join(wide) + "\n")
+    r = acn("import", str(tmp_path / "wide.csv"), "--out", str(tmp_path / "w"), *CONTROL)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "34 of its 100 rows have another number of fields than its header (line 2: 58" in r.stderr, r.stderr
+    assert not (tmp_path / "w").exists()
+    garbled = list(lines)
+    garbled[21] = garbled[21][: len(garbled[21]) // 3]
+    (tmp_path / "garbled.csv").write_text("\n".join(garbled) + "\n")
+    r = acn("import", str(tmp_path / "garbled.csv"), "--out", str(tmp_path / "g"), *CONTROL)
+    assert r.returncode == 0 and "line(s) 22)" in r.stdout and "split at 1 wrong time step(s)" in r.stdout, r.stdout
+    assert sorted(np.bincount(load_measurements(tmp_path / "g").episode).tolist()) == [19, 28, 49]  # rows 0-19, 21-49; episode 1
 
 
 def test_a_log_other_code_got_wrong_gets_one_line_naming_the_cause(tmp_path, log_rows, acn):

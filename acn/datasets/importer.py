@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -70,6 +71,9 @@ COMMAND_COLUMNS = (*ACTION_COLUMNS, *(c for columns in HYBRID_COLUMNS.values() f
 KNOWN_COLUMNS = (*INDEX_COLUMNS, *STATE_NAMES, *QUAT_COLUMNS, *COMMAND_COLUMNS, *EFFORT_COLUMNS)
 FRAMES = ("body", "world")
 MAP_ENTRY_KEYS = ("column", "scale", "offset", "threshold")
+_DECIMAL_COMMA = re.compile(r"^[-+]?\d+,\d+([eE][-+]?\d+)?$")
+_DECIMAL_POINT = re.compile(r"^[-+]?\d*\.\d+([eE][-+]?\d+)?$")
+MALFORMED_MAX = 0.1  # a CSV with this share of rows of the wrong number of fields or more is refused (read_table)
 JITTER_MAX = 0.25  # a time-step spread up to this share of the period is taken as jitter (ImportReport.tolerance_hint)
 
 
@@ -108,6 +112,7 @@ class ImportReport:
     partial_effort: list[str] = field(default_factory=list)  # effort.* columns of fewer than 12 joints: not stored
     unused: list[str] = field(default_factory=list)  # the log's columns no channel reads
     suggested_map: dict[str, str | dict] = field(default_factory=dict)  # unused columns named like channels it lacks
+    malformed: list[int] = field(default_factory=list)  # CSV lines set aside: another number of fields (read_table)
 
     def quaternion_hint(self) -> str | None:
         """A line where the orientation came from a quaternion and a check finds the trunk's
@@ -131,20 +136,31 @@ class ImportReport:
                 f"loop's jitter, not lost rows, --dt-tolerance {wider:g} keeps them whole")
 
 
-def read_table(path: Path) -> dict[str, np.ndarray]:
+@dataclass
+class LogTable:
+    """A log's numeric columns as float arrays, and the CSV rows set aside for their number of fields."""
+
+    columns: dict[str, np.ndarray]
+    malformed: list[int] = field(default_factory=list)  # the file's line numbers (1 = the first line)
+
+
+def read_table(path: Path) -> LogTable:
     """Columns of a CSV or Parquet file as float arrays (non-numeric columns are skipped; date-time
     columns become seconds since the epoch). A CSV's separator is read from its header: comma,
-    semicolon or tab; column names are stripped of surrounding spaces."""
+    semicolon or tab; ``#`` comment lines before the header are skipped; column names are stripped
+    of surrounding spaces and quotes. A CSV row with another number of fields than the header (a
+    last line cut off where the logger stopped mid-write, a line garbled by two writers) is set
+    aside and counted (``LogTable.malformed``), unless ``MALFORMED_MAX`` of the rows or more are:
+    then the file is refused (another separator or format)."""
     import pyarrow as pa
 
     if not path.is_file():
         raise UserError(f"log file {path} does not exist")
     suffix = path.suffix.lower()
+    malformed: list[tuple[int, int, int]] = []  # line, fields expected, fields found
     try:
         if suffix == ".csv":
-            import pyarrow.csv as pacsv
-
-            table = pacsv.read_csv(path, parse_options=pacsv.ParseOptions(delimiter=_separator(path)))
+            table = _read_csv(path, malformed)
         elif suffix in (".parquet", ".pq"):
             import pyarrow.parquet as pq
 
@@ -153,11 +169,16 @@ def read_table(path: Path) -> dict[str, np.ndarray]:
             raise UserError(f"{path}: a log must be a .csv or .parquet file")
     except (pa.ArrowInvalid, OSError) as e:
         raise UserError(f"cannot read {path}: {str(e).splitlines()[0]}") from None
+    if malformed and len(malformed) >= MALFORMED_MAX * (len(malformed) + table.num_rows):
+        line, want, got = malformed[0]
+        raise UserError(f"cannot read {path}: {len(malformed)} of its {len(malformed) + table.num_rows} rows have "
+                        f"another number of fields than its header (line {line}: {got}, the header {want}); "
+                        "is the separator comma, semicolon or tab throughout?")
     if table.num_rows == 0:
         raise UserError(f"{path} has no data rows (only a header: {', '.join(table.column_names[:4])}"
                         f"{', ...' if table.num_columns > 4 else ''})")
     out = {}
-    names = [n.strip() for n in table.column_names]
+    names = [n.strip().strip('"').strip() for n in table.column_names]
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
         raise UserError(f"{path} has more than one column named {', '.join(map(repr, twice))}: rename them")
@@ -169,7 +190,24 @@ def read_table(path: Path) -> dict[str, np.ndarray]:
             out[name] = col.cast(pa.int64()).to_numpy(zero_copy_only=False).astype(np.float64) * unit
         elif pa.types.is_integer(col.type) or pa.types.is_floating(col.type) or pa.types.is_boolean(col.type):
             out[name] = col.to_numpy(zero_copy_only=False).astype(np.float64)
-    return out
+    return LogTable(out, [line for line, _, _ in malformed])
+
+
+def _read_csv(path: Path, malformed: list[tuple[int, int, int]]):
+    """The CSV as a table, its rows of another number of fields than the header appended to
+    ``malformed`` (line, expected, found) and skipped. Parsed on one thread: only then does
+    pyarrow know a bad row's line."""
+    import pyarrow.csv as pacsv
+
+    comments, separator, decimal = _preamble(path)
+
+    def set_aside(row) -> str:
+        malformed.append((row.number if row.number is not None else -1, row.expected_columns, row.actual_columns))
+        return "skip"
+
+    return pacsv.read_csv(path, read_options=pacsv.ReadOptions(skip_rows=comments, use_threads=False),
+                          parse_options=pacsv.ParseOptions(delimiter=separator, invalid_row_handler=set_aside),
+                          convert_options=pacsv.ConvertOptions(decimal_point=decimal))
 
 
 def _list_columns(name: str, col) -> dict[str, np.ndarray]:
@@ -191,11 +229,21 @@ def _list_columns(name: str, col) -> dict[str, np.ndarray]:
     return {f"{name}[{i}]": values[:, i] for i in range(width)}
 
 
-def _separator(path: Path) -> str:
-    """The CSV's separator: whichever of comma, semicolon and tab its header line has most of."""
+def _preamble(path: Path) -> tuple[int, str, str]:
+    """The number of lines before a CSV's header (``#`` comments and blank lines a logger writes
+    first), its separator (whichever of comma, semicolon and tab the header has most of) and its
+    decimal point: a comma where the separator is not one and the first row writes its numbers
+    so (``0,25;1,5``: a spreadsheet in a European locale)."""
     with open(path, "rb") as f:
-        header = f.readline().decode("utf-8", errors="replace")
-    return max((",", ";", "\t"), key=header.count)
+        lines = (raw.decode("utf-8-sig", errors="replace").strip() for raw in f)
+        for skipped, line in enumerate(lines):
+            if line and not line.startswith("#"):
+                separator = max((",", ";", "\t"), key=line.count)
+                row = next(lines, "").split(separator)
+                comma = separator != "," and any(_DECIMAL_COMMA.match(c.strip()) for c in row) and not any(
+                    _DECIMAL_POINT.match(c.strip()) for c in row)
+                return skipped, separator, "," if comma else "."
+    return 0, ",", "."
 
 
 def read_map(path: Path | None) -> dict:
@@ -273,7 +321,8 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
         raise UserError(f"--imu-acc must be one of {', '.join(IMU_ACC_KINDS)} (or not given), got {cfg.imu_acc!r}")
     if sorted(cfg.leg_order) != sorted(FOOT_NAMES):
         raise UserError(f"--leg-order must name each of {', '.join(FOOT_NAMES)} once, got {', '.join(cfg.leg_order)}")
-    table = read_table(log)
+    read_log = read_table(log)
+    table = read_log.columns
     mapping = read_map(Path(map_path) if map_path else None)
     cols = resolve_columns(table, mapping)
     read = {naming.map_column(e) for e in mapping.values()} | set(KNOWN_COLUMNS)
@@ -354,9 +403,10 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
                               dropped_short=dropped, missing=missing,
                               findings=checks.check(written, period, cfg.action_mode), step_spread=spread,
                               hybrid=hybrid, quaternion=quaternion, partial_effort=partial_effort, unused=unused,
-                              suggested_map=suggested)
+                              suggested_map=suggested, malformed=read_log.malformed)
         writer.meta.info[schema.ACN_KEY]["import"] = {"file": log.name, "rows": n, "transitions": transitions,
-                          "rows_cut_nonfinite": report.cut_nonfinite, "time_step_breaks": report.time_breaks,
+                          "rows_cut_nonfinite": report.cut_nonfinite,
+                          "rows_malformed": len(report.malformed), "time_step_breaks": report.time_breaks,
                           "time_step_spread": round(spread, 4), "hybrid_command": hybrid,
                           "segments_too_short": dropped, "dt_tolerance": cfg.dt_tolerance,
                           "linvel_frame": cfg.linvel_frame, "angvel_frame": cfg.angvel_frame,
