@@ -601,8 +601,8 @@ def import_main(argv: list[str] | None = None) -> int:
               f"{r.dropped_short} one-row segment(s)")
         if r.malformed:
             lines = ", ".join(str(n) for n in r.malformed[:5]) + (", ..." if len(r.malformed) > 5 else "")
-            print(f"set aside {len(r.malformed)} row(s) with another number of fields than the header (line(s) {lines}): "
-                  "a row cut off where the logger stopped, or garbled")
+            print(f"set aside {len(r.malformed)} row(s) with another number of fields than the header "
+                  f"(line(s) {lines}): a row cut off where the logger stopped, or garbled")
         if r.hybrid:
             print(f"a hybrid command ({', '.join(r.hybrid)}): stored with the actions (action.hybrid: kp, kd, "
                   "velocity target and feedforward torque), which the model's PD runs as sent (--kp, --kd for a kind of gain "

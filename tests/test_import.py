@@ -411,7 +411,8 @@ def test_a_csv_of_many_rows_of_another_width_is_refused_a_garbled_row_set_aside(
     (tmp_path / "garbled.csv").write_text("\n".join(garbled) + "\n")
     r = acn("import", str(tmp_path / "garbled.csv"), "--out", str(tmp_path / "g"), *CONTROL)
     assert r.returncode == 0 and "line(s) 22)" in r.stdout and "split at 1 wrong time step(s)" in r.stdout, r.stdout
-    assert sorted(np.bincount(load_measurements(tmp_path / "g").episode).tolist()) == [19, 28, 49]  # rows 0-19, 21-49; episode 1
+    episodes = np.bincount(load_measurements(tmp_path / "g").episode)
+    assert sorted(episodes.tolist()) == [19, 28, 49]  # rows 0-19 and 21-49 of episode 0; episode 1
 
 
 def test_a_log_other_code_got_wrong_gets_one_line_naming_the_cause(tmp_path, log_rows, acn):
