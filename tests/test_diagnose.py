@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -818,6 +819,38 @@ def test_candidates_one_step_cannot_tell_apart_are_ordered_by_the_longer_predict
     gains = candidate("pd_gains", 0.9, 0.500, 0.50)
     gains.judgement = replace(gains.judgement, removed=strength.judgement.removed + 0.01)
     assert tied_with_best([strength, gains]) == [] and prefer_longer([strength, gains])[0] is strength
+
+
+def test_an_added_effect_names_the_candidates_one_step_could_not_tell_it_from():
+    """``rank.tied_with`` of the candidate ``--auto`` adds: of the same ranking, those the held-out
+    one step does not put behind it; the report lists them under the added effect (terminal, HTML
+    and JSON ``one_step_ties``) with their fits and both horizons' shares, the added one first."""
+    from acn.models.diagnose.add import Added
+    from acn.models.diagnose.rank import tied_either_way, tied_with
+    from acn.models.diagnose.report import _notes, _ties_json
+
+    rng = np.random.default_rng(3)
+    payload = ranked_candidate(rng, "payload", 0.0, 0.500, 0.71)
+    strength = ranked_candidate(rng, "motor_strength", 0.9, 0.501, 0.41)  # as good at one step
+    friction = ranked_candidate(rng, "joint_friction", 0.3, 0.60, None)   # clearly worse: not tied
+    assert tied_with(payload, [payload, strength, friction]) == [strength]
+    # a payload put first by the longer prediction, one step significantly better than strength (z > 2):
+    # tied from strength's side only, and the report's ties hold it either way round
+    clear = ranked_candidate(rng, "payload", 0.0, 0.47, 0.71)
+    clear.score = strength.score - 0.01  # behind strength by the price of its parameters
+    assert tied_with(clear, [clear, strength]) == [] and tied_with(strength, [strength, clear]) == [clear]
+    assert tied_either_way(clear, [clear, strength, friction]) == [strength]
+    before, after = (SimpleNamespace(check=25, channel_error={25: np.full((1, 4), e)}) for e in (1.0, 0.5))
+    step = Added(payload.fit, payload.judgement, before, after, [payload, strength])
+    said = _notes(step, 1.5)[-1]
+    assert said.startswith("the held-out one step could not tell it from motor_strength (scale=0.9) removed ")
+    assert f"{strength.judgement.removed:.1%} of the one-step error and 41% of the 25-step one" in said, said
+    assert said.endswith(f"(ranked, payload (mass=0, com_x=0, com_y=0, com_z=0) removed "
+                         f"{payload.judgement.removed:.1%} of the one-step error and 71% of the 25-step one)"), said
+    assert [(t["name"], t["longest_horizon_removed"]) for t in _ties_json(step)] == [("payload", 0.71),
+                                                                                     ("motor_strength", 0.41)]
+    assert _ties_json(step)[1]["params"] == {"scale": 0.9}
+    assert _notes(Added(payload.fit, payload.judgement, before, after), 1.5) == []
 
 
 def test_a_richer_effect_that_wins_only_the_one_step_gives_way_to_a_simpler_one():

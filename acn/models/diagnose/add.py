@@ -29,7 +29,8 @@ from acn.models.diagnose.fitting import (GRANULARITIES, EffectFit, default_granu
                                          instrumental_refit, multistep_refit, refittable)
 from acn.models.diagnose.problem import DiagnoseConfig, Problem
 from acn.models.diagnose.rank import (LARGE_IMPROVEMENT, PARSIMONY_Z, STRUCTURED_SHARE, Candidate, Judgement, doubt,
-                                      finer_look, fits_noise, implausible, judge, paired_z, rank, rank_rows)
+                                      finer_look, fits_noise, implausible, judge, paired_z, rank, rank_rows,
+                                      tied_either_way)
 from acn.toolkit.effects import Model, get_effect
 
 AUTO_MIN_EXPLAINED = 0.05  # --auto stops when the best candidate explains less of what is left
@@ -47,6 +48,8 @@ class Added:
     judgement: Judgement
     before: Comparison
     after: Comparison
+    ties: list[Candidate] = field(default_factory=list)  # ``--auto``: the candidate it was added as, first, and
+    # those of the same ranking the held-out one step could not tell from it (``rank.tied_either_way``); [] if none
 
     @property
     def name(self) -> str:
@@ -147,7 +150,7 @@ def refine_chain(problem: Problem, before: Comparison, steps: list[Added], cfg: 
     for step in steps[first:]:
         fit = _final_fit(problem, current.model, step.fit, cfg, again=True, central=step.fit.effect.moves_start)
         judgement = judge(problem, fit.model, judge_rows, residual)
-        out.append(Added(fit, judgement, current, compare(problem, fit.model, cfg)))
+        out.append(Added(fit, judgement, current, compare(problem, fit.model, cfg), step.ties))
         current, residual = out[-1].after, judgement.residual_after
     refined, unrefined = (float(np.mean(c[-1].judgement.residual_after ** 2)) for c in (out, steps))
     return out if refined <= unrefined else steps
@@ -178,7 +181,7 @@ def fit_over_steps(problem: Problem, steps: list[Added], cfg: DiagnoseConfig, ju
         return steps
     residual = steps[-2].judgement.residual_after if len(steps) > 1 else base_residual
     return steps[:-1] + [Added(fit, judge(problem, fit.model, judge_rows, residual), last.before,
-                               compare(problem, fit.model, cfg))]
+                               compare(problem, fit.model, cfg), last.ties)]
 
 
 def add_effect(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, judge_rows: np.ndarray,
@@ -298,13 +301,15 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
     while len(names(added)) < cfg.auto_max and len(added) < 2 * cfg.auto_max:  # (refinements: finite, bounded)
         open_ = [c for c in ranking if c.name not in names(added) or c.name not in kept_coarse  # refinements too
                  and _finer(c.fit.granularity, _held(current.model, c.name))]
-        best = next((c for c in open_ if c.name not in noise_fits | set(set_aside)
-                     and c.judgement.significant and not doubt(c)), None)
+        open_ = [c for c in open_ if c.name not in noise_fits | set(set_aside)]
+        best = next((c for c in open_ if c.judgement.significant and not doubt(c)), None)
         if best is None or too_little(best.judgement, best.longer_gain, floor_mse):
             break
         if progress:
             progress(f"adding {best.name}", None)
         step = add_effect(problem, current.model, best.name, cfg, judge_rows, residual, current, start=best.fit)
+        rivals = tied_either_way(best, open_)
+        step.ties = [best, *rivals] if rivals else []
         little = too_little(step.judgement, longer_gain(step), floor_mse)
         why = final_doubt(step) or (f"its final fit {little}" if little else "")
         if best.name in names(added) and (why or not step.refines or fits_noise(longer_gain(step), step.fit.effect)):
@@ -432,6 +437,7 @@ def revisit(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows
         if progress:
             progress(f"adding {name}", None)
         step = add_effect(problem, current.model, name, cfg, judge_rows, residual, current)
+        step.ties = next((s.ties for s in added if s.name == name), [])  # an effect kept: as it was added
         chain.append(step)
         current, residual = step.after, step.judgement.residual_after
     return chain

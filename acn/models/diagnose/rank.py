@@ -442,31 +442,48 @@ def longer_margin(horizon: LongestHorizon | None, richer: Candidate, simpler: Ca
 
 
 def tied_with_best(ranking: list[Candidate]) -> list[Candidate]:
-    """The best candidate not set aside (``doubt``) and the significant, plausible ones the held-out
-    one step does not put behind it (blocks of rows). [] if none.
+    """The best candidate not set aside (``doubt``) and those ``tied_with`` it. [] if none.
 
-    Of no more parameters than the best: those it does not predict significantly better than
-    (paired z < ``PARSIMONY_Z``). Of more: those that remove at least as much of the one-step
-    error and rank behind it only by the price of their parameters, unless they reproduce the
-    best (``Effect.reproduces``: both PD gains fit motor strength, and whatever else the PD's
-    extra freedom absorbs). A fresh draw of a 1.8 kg payload beside a 14.9 N m torque limit:
-    after the limit, the payload removed 2.9 % of the one-step error and motor strength 2.6 %
-    (z 0.8 between them), the payload's three centre-of-mass coordinates put strength first,
-    and strength was added (0.90) though the payload predicted 25 steps clearly better.
+    A fresh draw of a 1.8 kg payload beside a 14.9 N m torque limit: after the limit, the payload
+    removed 2.9 % of the one-step error and motor strength 2.6 % (z 0.8 between them), the
+    payload's three centre-of-mass coordinates put strength first, and strength was added (0.90)
+    though the payload predicted 25 steps clearly better.
     """
     free = [c for c in ranking if not doubt(c)]
     if len(free) < 2 or not free[0].judgement.significant:
         return []
-    best = free[0]
-    e_best = (best.judgement.residual_after ** 2).mean(1)
+    ties = tied_with(free[0], ranking)
+    return [free[0], *ties] if ties else []
 
-    def tied(c: Candidate) -> bool:
-        if len(c.fit.x) > len(best.fit.x):
-            return c.judgement.removed >= best.judgement.removed and best.name not in c.fit.effect.reproduces
-        return paired_z((c.judgement.residual_after ** 2).mean(1) - e_best) < PARSIMONY_Z
 
-    ties = [c for c in free[1:] if c.judgement.significant and tied(c)]
-    return [best, *ties] if ties else []
+def tied_with(best: Candidate, ranking: list[Candidate]) -> list[Candidate]:
+    """The significant, plausible candidates of ``ranking`` (``best`` aside) the held-out one step
+    does not put behind ``best`` (``one_step_tie``), in rank order."""
+    return [c for c in ranking if c is not best and c.judgement.significant and not doubt(c) and one_step_tie(best, c)]
+
+
+def one_step_tie(best: Candidate, c: Candidate) -> bool:
+    """Whether the held-out one step does not put ``c`` behind ``best`` (blocks of rows).
+
+    Of no more parameters than ``best``: ``best`` does not predict significantly better (paired
+    z < ``PARSIMONY_Z``). Of more: ``c`` removes at least as much of the one-step error and ranks
+    behind only by the price of its parameters, unless it reproduces ``best`` (``Effect.reproduces``:
+    both PD gains fit motor strength, and whatever else the PD's extra freedom absorbs)."""
+    if len(c.fit.x) > len(best.fit.x):
+        return c.judgement.removed >= best.judgement.removed and best.name not in c.fit.effect.reproduces
+    e_best, e_c = ((x.judgement.residual_after ** 2).mean(1) for x in (best, c))
+    return paired_z(e_c - e_best) < PARSIMONY_Z
+
+
+def tied_either_way(best: Candidate, ranking: list[Candidate]) -> list[Candidate]:
+    """The candidates of ``ranking`` ``tied_with`` ``best``, and those that score at least as high
+    with which ``best`` would be tied were they first: what the held-out one step leaves open
+    beside ``best``, for the report. A richer ``best`` that ``prefer_longer`` put before a simpler
+    one it predicts one step significantly better than is tied from the simpler one's side only (a
+    fresh draw of a 1.2 kg payload beside a 3 ms delay: motor strength first by price, the payload
+    z 3.4 better at one step)."""
+    return [c for c in ranking if c is not best and c.judgement.significant and not doubt(c)
+            and (one_step_tie(best, c) or (c.score >= best.score and one_step_tie(c, best)))]
 
 
 def prefer_longer(ranking: list[Candidate]) -> list[Candidate]:

@@ -32,6 +32,9 @@ JSON keys (the machine-readable contract):
   ``refines`` (the granularity of an effect added before and fitted finer in this step, else
   null), ``same_physics_as`` (the effect in the words of those it reproduces while the PD is
   unsaturated, ``Effect.alike``: PD gains as motor strength and joint damping; else null),
+  ``one_step_ties`` (``--auto``: the candidate it was added as, then those of the same ranking the
+  held-out one step could not tell from it, ``rank.tied_with``, each ``name``, ``params`` of its
+  ranking fit, ``removed`` and ``longest_horizon_removed`` as in ``ranking``; [] if none),
   ``error_before`` and ``error_after`` (horizon -> group), ``headline_before``,
   ``headline_after``, ``explained``;
 - ``model`` and ``final_model``: the model files before and after;
@@ -96,6 +99,40 @@ def _alike_text(a: Added, kd: float) -> str:
     return f"while the PD is unsaturated, the same physics as: {said}" if said else ""
 
 
+def _own_params(fit) -> str:
+    """The effect's own fitted values ("scale=0.9027"; "value=12 values 0.1..0.3"), without those of
+    effects refitted with it."""
+    said = []
+    for name, v in fit.effect.to_json(fit.values).items():
+        said.append(f"{name}={len(v)} values {min(v):.4g}..{max(v):.4g}" if isinstance(v, list) else f"{name}={v:.4g}")
+    return ", ".join(said)
+
+
+def _tie(c: Candidate, horizon: int) -> str:
+    longer = "" if c.longer_gain is None else f" and {c.longer_gain:.0%} of the {horizon}-step one"
+    return f"{c.name} ({_own_params(c.fit)}) removed {c.judgement.removed:.1%} of the one-step error{longer}"
+
+
+def _ties_text(a: Added) -> str:
+    """The candidates the held-out one step could not tell the added effect from (``Added.ties``),
+    each with its ranking fit, "" if none: what the data leave open."""
+    if not a.ties:
+        return ""
+    h = a.before.check
+    return (f"the held-out one step could not tell it from {'; '.join(_tie(c, h) for c in a.ties[1:])} "
+            f"(ranked, {_tie(a.ties[0], h)})")
+
+
+def _ties_json(a: Added) -> list[dict]:
+    return [{"name": c.name, "params": c.fit.effect.to_json(c.fit.values), "removed": round(c.judgement.removed, 4),
+             "longest_horizon_removed": None if c.longer_gain is None else round(c.longer_gain, 4)} for c in a.ties]
+
+
+def _notes(a: Added, kd: float) -> list[str]:
+    """What the report says under an added effect besides its numbers."""
+    return [t for t in (_unidentified_text(a.fit), _noise_fit_text(a), _alike_text(a, kd), _ties_text(a)) if t]
+
+
 def _unidentified_text(fit) -> str:
     loose = unidentified(fit)
     return (f"not identified by these data (standard error above half the largest realistic magnitude): "
@@ -148,6 +185,7 @@ def _step(a: Added) -> str:
 def _added(a: Added, floor_mse: float, kd: float) -> dict:
     return {"name": a.name, "params": a.fit.effect.to_json(a.fit.values), "granularity": a.fit.granularity,
             "refines": a.refines or None, "same_physics_as": _alike(a, kd) or None,
+            "one_step_ties": _ties_json(a),
             "free_parameters": _free(a.fit), "error_before": _errors(a.before), "error_after": _errors(a.after),
             "headline_before": a.before.headline, "headline_after": a.after.headline,
             "explained": a.judgement.explained(floor_mse), "removed": a.judgement.removed}
@@ -240,7 +278,7 @@ def terminal(d: Diagnosis) -> str:
     out += [f"set aside by --auto: {name} {why}" for name, why in d.set_aside.items()]
     for a in d.added:
         out += ["", f"{_step(a)}: {a.fit.effect.to_json(a.fit.values)}"]
-        out += [t for t in [_unidentified_text(a.fit), _noise_fit_text(a), _alike_text(a, _kd(d))] if t]
+        out += _notes(a, _kd(d))
         out += [f"headline {a.before.headline:.4f} -> {a.after.headline:.4f}", error_table(a.before, a.after)]
     if len(d.chains) > 1:
         out += ["", "chains of effects tried by --auto (started with):"]
@@ -323,8 +361,7 @@ def write_html(d: Diagnosis, path: str | Path) -> Path:
         "</tr>" for c in d.ranking)
     added = "".join(f"<li>{html.escape(_step(a))} {html.escape(_params_text(a.fit))}: headline "
                     f"{a.before.headline:.4f} &rarr; {a.after.headline:.4f}"
-                    + "".join(f"<br><i>{html.escape(t)}</i>" for t in (_unidentified_text(a.fit), _noise_fit_text(a),
-                                                                       _alike_text(a, _kd(d))) if t)
+                    + "".join(f"<br><i>{html.escape(t)}</i>" for t in _notes(a, _kd(d)))
                     + "</li>"
                     for a in d.added)
     chains = "".join(f"<li>started with {c.start}: <b>{html.escape(c.label)}</b>"
