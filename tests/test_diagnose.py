@@ -822,12 +822,14 @@ def test_candidates_one_step_cannot_tell_apart_are_ordered_by_the_longer_predict
 
 
 def test_an_added_effect_names_the_candidates_one_step_could_not_tell_it_from():
-    """``rank.tied_with`` of the candidate ``--auto`` adds: of the same ranking, those the held-out
-    one step does not put behind it; the report lists them under the added effect (terminal, HTML
-    and JSON ``one_step_ties``) with their fits and both horizons' shares, the added one first."""
+    """``rank.tied_either_way`` of the candidate ``--auto`` adds: of the same ranking, those the
+    held-out one step does not put behind it, or behind which it would not be put; the report lists
+    them under the added effect (terminal, HTML and JSON ``one_step_ties``) with their own fitted
+    values and both horizons' shares, the added one first. An added effect's parameters are printed
+    apart from those of effects refitted with it."""
     from acn.models.diagnose.add import Added
     from acn.models.diagnose.rank import tied_either_way, tied_with
-    from acn.models.diagnose.report import _notes, _ties_json
+    from acn.models.diagnose.report import _notes, _params_text, _ties_json
 
     rng = np.random.default_rng(3)
     payload = ranked_candidate(rng, "payload", 0.0, 0.500, 0.71)
@@ -851,6 +853,10 @@ def test_an_added_effect_names_the_candidates_one_step_could_not_tell_it_from():
                                                                                      ("motor_strength", 0.41)]
     assert _ties_json(step)[1]["params"] == {"scale": 0.9}
     assert _notes(Added(payload.fit, payload.judgement, before, after), 1.5) == []
+    # an effect fitted beside one added before it: its own values, then those refitted with it, apart
+    both = replace(strength.fit, names=["scale", "torque_limit.value"], x=np.array([0.9, 13.5]),
+                   stderr=np.array([0.003, 0.05]))
+    assert _params_text(both) == "scale=0.9 +- 0.003; refitted with it: torque_limit.value=13.5 +- 0.05"
 
 
 def test_a_richer_effect_that_wins_only_the_one_step_gives_way_to_a_simpler_one():

@@ -148,7 +148,16 @@ def _set_aside_because(d: Diagnosis, c: Candidate) -> str:
 
 
 def _params_text(fit, most: int = 4) -> str:
+    """The fitted free parameters with their standard errors; those of effects refitted with it
+    (``fitting.Together``: named "effect.parameter") after "refitted with it", apart, since their
+    units differ."""
     free = _free(fit)
+    own, partners = [f for f in free if "." not in f["name"]], [f for f in free if "." in f["name"]]
+    text = _values_text(own, most)
+    return f"{text}; refitted with it: {_values_text(partners, most)}" if partners else text
+
+
+def _values_text(free: list[dict], most: int) -> str:
     if len(free) > most:  # 12 per-joint values: the spread, the rest is in the JSON
         v = np.array([f["value"] for f in free])
         return f"{len(free)} values {v.min():.3g}..{v.max():.3g} (see --json)"
