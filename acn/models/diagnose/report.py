@@ -33,7 +33,7 @@ JSON keys (the machine-readable contract):
   null), ``same_physics_as`` (the effect in the words of those it reproduces while the PD is
   unsaturated, ``Effect.alike``: PD gains as motor strength and joint damping; else null),
   ``one_step_ties`` (``--auto``: the candidate it was added as, then those of the same ranking the
-  held-out one step could not tell from it, ``rank.tied_with``, each ``name``, ``params`` of its
+  held-out one step could not tell from it, ``rank.tied_either_way``, each ``name``, ``params`` of its
   ranking fit, ``removed`` and ``longest_horizon_removed`` as in ``ranking``; [] if none),
   ``error_before`` and ``error_after`` (horizon -> group), ``headline_before``,
   ``headline_after``, ``explained``;
