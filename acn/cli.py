@@ -603,6 +603,9 @@ def import_main(argv: list[str] | None = None) -> int:
             lines = ", ".join(str(n) for n in r.malformed[:5]) + (", ..." if len(r.malformed) > 5 else "")
             print(f"set aside {len(r.malformed)} row(s) with another number of fields than the header "
                   f"(line(s) {lines}): a row cut off where the logger stopped, or garbled")
+        if r.text_rows:
+            print(f"{r.text_rows} row(s) with text among the numbers (first: {r.text_example}; a header written again, "
+                  "a mark for a lost reading): read as missing values")
         if r.hybrid:
             print(f"a hybrid command ({', '.join(r.hybrid)}): stored with the actions (action.hybrid: kp, kd, "
                   "velocity target and feedforward torque), which the model's PD runs as sent (--kp, --kd for a kind of gain "

@@ -374,21 +374,27 @@ def _csv_text(rows: dict, how: str) -> str:
     if how == "decimal commas":
         return "\n".join(lines[0].replace(",", ";") if i == 0 else line.replace(",", ";").replace(".", ",")
                          for i, line in enumerate(lines)) + "\n"
+    if how == "a header written again":  # the logger restarted between the episodes, appending
+        return "\n".join([*lines[:51], lines[0], *lines[51:]]) + "\n"
     assert how == "a last line cut off"
     return "\n".join([*lines[:-1], lines[-1][: len(lines[-1]) // 2]])
 
 
 @pytest.mark.parametrize("how, suffix", [("semicolons", "csv"), ("empty mocap columns", "parquet"),
                                          ("date-time stamps", "parquet"), ("comments, BOM, CRLF", "csv"),
-                                         ("decimal commas", "csv"), ("a last line cut off", "csv")])
+                                         ("decimal commas", "csv"), ("a last line cut off", "csv"),
+                                         ("a header written again", "csv")])
 def test_logs_as_other_code_writes_them_import(tmp_path, log_rows, acn, how, suffix):
     """Each imports whole, to the logged values (float32 storage); a last row cut off mid-line is
-    set aside, named by its line, and the rest imported."""
+    set aside, named by its line, and the rest imported; a header written again is read as a row
+    of missing values, said, and cut."""
     _write_variant(tmp_path / f"log.{suffix}", log_rows, how)
     r = acn("import", str(tmp_path / f"log.{suffix}"), "--out", str(tmp_path / "ds"), *CONTROL)
-    cut = how == "a last line cut off"
+    cut, again = how == "a last line cut off", how == "a header written again"
     assert r.returncode == 0 and f"{97 if cut else 98} transitions in 2 episode(s)" in r.stdout, r.stdout + r.stderr
     assert ("set aside 1 row(s) with another number of fields than the header (line(s) 101)" in r.stdout) == cut
+    assert ("1 row(s) with text among the numbers (first: 'episode_index' = 'episode_index'" in r.stdout) == again
+    assert ("cut 1 row(s) with non-finite values" in r.stdout) == again
     m = load_measurements(tmp_path / "ds")
     assert m.missing == (list(GROUPS["base_pos"] + GROUPS["base_linvel"]) if how == "empty mocap columns" else [])
     q = m.state[:49, SLICES["joint_pos"]]
@@ -461,3 +467,16 @@ def test_array_columns_duplicate_names_and_partial_efforts(tmp_path, log_rows, a
     pq.write_table(pa.table(some), str(tmp_path / "efforts.parquet"))
     r = acn("import", str(tmp_path / "efforts.parquet"), "--out", str(tmp_path / "e"), *CONTROL)
     assert r.returncode == 0 and "efforts of 3 of 12 joints" in r.stdout, r.stdout
+
+
+def test_a_column_of_numbers_with_some_text_is_read_as_numbers_a_column_of_text_is_not():
+    """"-" for a lost reading, a header written again: NaN there, the rest numbers; a mode column
+    of words stays text (skipped)."""
+    from acn.datasets.importer import _mostly_numbers
+
+    values, text = _mostly_numbers(["0.5"] * 18 + ["-", "1e-3", None])
+    assert text.tolist() == [False] * 18 + [True, False, False]
+    np.testing.assert_array_equal(values[[0, 19]], [0.5, 1e-3])
+    assert np.isnan(values[[18, 20]]).all()
+    assert _mostly_numbers(["walk", "walk", "trot", "1"]) is None
+    assert _mostly_numbers(["0.5", "0.25"]) is None  # numbers throughout: the reader's own job

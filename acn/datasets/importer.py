@@ -73,6 +73,7 @@ FRAMES = ("body", "world")
 MAP_ENTRY_KEYS = ("column", "scale", "offset", "threshold")
 _DECIMAL_COMMA = re.compile(r"^[-+]?\d+,\d+([eE][-+]?\d+)?$")
 _DECIMAL_POINT = re.compile(r"^[-+]?\d*\.\d+([eE][-+]?\d+)?$")
+MOSTLY_NUMBERS = 0.9  # a text column with this share of numbers is a column of numbers with some text (read_table)
 MALFORMED_MAX = 0.1  # a CSV with this share of rows of the wrong number of fields or more is refused (read_table)
 JITTER_MAX = 0.25  # a time-step spread up to this share of the period is taken as jitter (ImportReport.tolerance_hint)
 
@@ -113,6 +114,8 @@ class ImportReport:
     unused: list[str] = field(default_factory=list)  # the log's columns no channel reads
     suggested_map: dict[str, str | dict] = field(default_factory=dict)  # unused columns named like channels it lacks
     malformed: list[int] = field(default_factory=list)  # CSV lines set aside: another number of fields (read_table)
+    text_rows: int = 0     # rows with text among numbers, read as NaN (cut where a channel reads it)
+    text_example: str = ""
 
     def quaternion_hint(self) -> str | None:
         """A line where the orientation came from a quaternion and a check finds the trunk's
@@ -142,6 +145,8 @@ class LogTable:
 
     columns: dict[str, np.ndarray]
     malformed: list[int] = field(default_factory=list)  # the file's line numbers (1 = the first line)
+    text_rows: int = 0     # rows with text in a column of numbers (read as NaN: ``_mostly_numbers``)
+    text_example: str = ""  # the first such cell, as 'column' = 'text'
 
 
 def read_table(path: Path) -> LogTable:
@@ -177,7 +182,7 @@ def read_table(path: Path) -> LogTable:
     if table.num_rows == 0:
         raise UserError(f"{path} has no data rows (only a header: {', '.join(table.column_names[:4])}"
                         f"{', ...' if table.num_columns > 4 else ''})")
-    out = {}
+    out, text_rows, example = {}, None, ""
     names = [n.strip().strip('"').strip() for n in table.column_names]
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
@@ -190,7 +195,29 @@ def read_table(path: Path) -> LogTable:
             out[name] = col.cast(pa.int64()).to_numpy(zero_copy_only=False).astype(np.float64) * unit
         elif pa.types.is_integer(col.type) or pa.types.is_floating(col.type) or pa.types.is_boolean(col.type):
             out[name] = col.to_numpy(zero_copy_only=False).astype(np.float64)
-    return LogTable(out, [line for line, _, _ in malformed])
+        elif (pa.types.is_string(col.type) or pa.types.is_large_string(col.type)) and (
+                read := _mostly_numbers(col.to_pylist())) is not None:
+            out[name], text = read
+            example = example or f"{name!r} = {col[int(np.flatnonzero(text)[0])].as_py()!r}"
+            text_rows = text if text_rows is None else text_rows | text
+    return LogTable(out, [line for line, _, _ in malformed], 0 if text_rows is None else int(text_rows.sum()), example)
+
+
+def _mostly_numbers(cells: list) -> tuple[np.ndarray, np.ndarray] | None:
+    """A text column most of whose cells are numbers (``MOSTLY_NUMBERS``; a header the logger wrote
+    again after a restart, a "-" or "n/a" for a lost reading, make the CSV reader read the whole
+    column as text): the numbers, NaN elsewhere, and where its text was. None for a column of
+    text (a mode, a name), which is skipped."""
+    values, text = np.full(len(cells), np.nan), np.zeros(len(cells), bool)
+    for i, cell in enumerate(cells):
+        if cell is None or not cell.strip():
+            continue
+        try:
+            values[i] = float(cell)
+        except ValueError:
+            text[i] = True
+    filled = int(np.isfinite(values).sum() + text.sum())
+    return (values, text) if text.any() and filled and np.isfinite(values).sum() >= MOSTLY_NUMBERS * filled else None
 
 
 def _read_csv(path: Path, malformed: list[tuple[int, int, int]]):
@@ -403,10 +430,12 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
                               dropped_short=dropped, missing=missing,
                               findings=checks.check(written, period, cfg.action_mode), step_spread=spread,
                               hybrid=hybrid, quaternion=quaternion, partial_effort=partial_effort, unused=unused,
-                              suggested_map=suggested, malformed=read_log.malformed)
+                              suggested_map=suggested, malformed=read_log.malformed,
+                              text_rows=read_log.text_rows, text_example=read_log.text_example)
         writer.meta.info[schema.ACN_KEY]["import"] = {"file": log.name, "rows": n, "transitions": transitions,
                           "rows_cut_nonfinite": report.cut_nonfinite,
-                          "rows_malformed": len(report.malformed), "time_step_breaks": report.time_breaks,
+                          "rows_malformed": len(report.malformed), "rows_with_text": report.text_rows,
+                          "time_step_breaks": report.time_breaks,
                           "time_step_spread": round(spread, 4), "hybrid_command": hybrid,
                           "segments_too_short": dropped, "dt_tolerance": cfg.dt_tolerance,
                           "linvel_frame": cfg.linvel_frame, "angvel_frame": cfg.angvel_frame,
