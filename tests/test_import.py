@@ -429,6 +429,9 @@ def test_a_log_other_code_got_wrong_gets_one_line_naming_the_cause(tmp_path, log
         (pa.table(interleaved), "sort the log by episode_index, then timestamp"),
         (pa.table({k: v[:0] for k, v in log_rows.items()}), "no data rows"),
         (pa.table(f32), "the timestamps are float32 numbers"),
+        # whole microseconds are float32 numbers too, and were once called so
+        (pa.table({**log_rows, "timestamp": (log_rows["timestamp"] * 1e6).astype(np.int64)}),
+         'timestamps in us? map timestamp with "scale": 1e-06'),
     ]
     for k, (table, message) in enumerate(cases):
         pq.write_table(table, str(tmp_path / f"{k}.parquet"))

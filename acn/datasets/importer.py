@@ -597,14 +597,15 @@ def _check_time_step(steps: np.ndarray, period: float, tol: float, timestamp: np
     med = float(np.median(steps))
     if abs(med - period) <= tol * period:
         return
+    ratio = med / period
+    unit = next((u for u, f in (("ms", 1e3), ("us", 1e6), ("ns", 1e9)) if abs(ratio / f - 1) <= tol), None)
     t = timestamp[np.isfinite(timestamp)]  # float32 timestamps far from zero step in coarse increments
     top = float(np.abs(t).max()) if len(t) else 0.0
-    if len(t) and np.array_equal(t, t.astype(np.float32)) and np.spacing(np.float32(top)) > 0.05 * period:
+    # (whole microseconds are float32 numbers too: a step of a unit's size is that unit)
+    if not unit and len(t) and np.array_equal(t, t.astype(np.float32)) and np.spacing(np.float32(top)) > 0.05 * period:
         raise UserError(f"the timestamps are float32 numbers: near {top:.6g} s they can only step by "
                         f"{float(np.spacing(np.float32(top))):.3g} s, too coarse for {1 / period:g} Hz; write "
                         "them as float64, or as seconds since the log's start")
-    ratio = med / period
-    unit = next((u for u, f in (("ms", 1e3), ("us", 1e6), ("ns", 1e9)) if abs(ratio / f - 1) <= tol), None)
     hint = (f"timestamps in {unit}? map timestamp with \"scale\": {1 / {'ms': 1e3, 'us': 1e6, 'ns': 1e9}[unit]:g}"
             if unit else f"is --control-hz right? the log's rate looks like {1 / med:.4g} Hz" if med > 0
             else "timestamps must increase within an episode")
