@@ -483,3 +483,24 @@ def test_a_column_of_numbers_with_some_text_is_read_as_numbers_a_column_of_text_
     assert np.isnan(values[[18, 20]]).all()
     assert _mostly_numbers(["walk", "walk", "trot", "1"]) is None
     assert _mostly_numbers(["0.5", "0.25"]) is None  # numbers throughout: the reader's own job
+
+
+def test_a_log_written_as_one_file_per_run_imports_as_one_dataset(tmp_path, log_rows, acn):
+    """Two runs in two files without episode_index: one dataset, each file its own episode, the
+    same rows as the one-file log; a file with other columns is refused in one line."""
+    runs = []
+    for e in (0, 1):
+        rows = log_rows["episode_index"] == e
+        runs.append(tmp_path / f"run{e}.csv")
+        pacsv.write_csv(pa.table({k: v[rows] for k, v in log_rows.items() if k != "episode_index"}), runs[-1])
+    r = acn("import", *map(str, runs), "--out", str(tmp_path / "ds"), *CONTROL)
+    assert r.returncode == 0 and "98 transitions in 2 episode(s)" in r.stdout, r.stdout + r.stderr
+    m = load_measurements(tmp_path / "ds")
+    want = np.column_stack([log_rows[f"{j}_pos"] for j in JOINT_NAMES])
+    np.testing.assert_allclose(m.state[:, SLICES["joint_pos"]], np.delete(want, [49, 99], axis=0), atol=1e-5)
+    assert load(tmp_path / "ds").meta.info["acn"]["source"]["files"] == ["run0.csv", "run1.csv"]
+    pacsv.write_csv(pa.table(log_rows), tmp_path / "other.csv")  # it has episode_index
+    r = acn("import", str(runs[0]), str(tmp_path / "other.csv"), "--out", str(tmp_path / "no"), *CONTROL)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "other.csv has other columns than" in r.stderr and "it adds episode_index" in r.stderr, r.stderr
+    assert not (tmp_path / "no").exists()

@@ -144,7 +144,8 @@ class LogTable:
     """A log's numeric columns as float arrays, and the CSV rows set aside for their number of fields."""
 
     columns: dict[str, np.ndarray]
-    malformed: list[int] = field(default_factory=list)  # the file's line numbers (1 = the first line)
+    malformed: list[str] = field(default_factory=list)  # the file's line numbers (1 = the first line; "file:line"
+    # where several files are read)
     text_rows: int = 0     # rows with text in a column of numbers (read as NaN: ``_mostly_numbers``)
     text_example: str = ""  # the first such cell, as 'column' = 'text'
 
@@ -200,7 +201,35 @@ def read_table(path: Path) -> LogTable:
             out[name], text = read
             example = example or f"{name!r} = {col[int(np.flatnonzero(text)[0])].as_py()!r}"
             text_rows = text if text_rows is None else text_rows | text
-    return LogTable(out, [line for line, _, _ in malformed], 0 if text_rows is None else int(text_rows.sum()), example)
+    return LogTable(out, [str(line) for line, _, _ in malformed], 0 if text_rows is None else int(text_rows.sum()),
+                    example)
+
+
+def read_logs(paths: list[Path]) -> LogTable:
+    """``read_table`` of each file, one after the other: a logger that writes a file per run. The
+    files must have the same columns; each file's episodes stay apart from the others' (its
+    ``episode_index`` values, or 0 where it has none, shifted past those of the files before)."""
+    if len(paths) == 1:
+        return read_table(paths[0])
+    tables = [read_table(p) for p in paths]
+    first = set(tables[0].columns)
+    for p, t in zip(paths[1:], tables[1:]):
+        if set(t.columns) != first:
+            lacks, adds = sorted(first - set(t.columns)), sorted(set(t.columns) - first)
+            differ = [f"it lacks {', '.join(lacks[:4])}"] * bool(lacks) + [f"it adds {', '.join(adds[:4])}"] * bool(adds)
+            raise UserError(f"{p} has other columns than {paths[0]}: {'; '.join(differ)}; several logs are read one "
+                            "after the other and must have the same columns")
+    episodes, after = [], 0.0
+    for t in tables:
+        n = len(next(iter(t.columns.values()))) if t.columns else 0
+        e = t.columns.get("episode_index", np.zeros(n))
+        low = float(np.nanmin(e)) if np.isfinite(e).any() else 0.0
+        episodes.append(e - low + after)
+        after = float(np.nanmax(episodes[-1])) + 1.0 if np.isfinite(e).any() else after + 1.0
+    columns = {c: np.concatenate([t.columns[c] for t in tables]) for c in tables[0].columns}
+    columns["episode_index"] = np.concatenate(episodes)
+    return LogTable(columns, [f"{p.name}:{line}" for p, t in zip(paths, tables) for line in t.malformed],
+                    sum(t.text_rows for t in tables), next((t.text_example for t in tables if t.text_example), ""))
 
 
 def _mostly_numbers(cells: list) -> tuple[np.ndarray, np.ndarray] | None:
@@ -334,12 +363,14 @@ def _segments(episode: np.ndarray, timestamp: np.ndarray, good: np.ndarray, peri
             start = i
 
 
-def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: str | Path | None = None,
-               overwrite: bool = False) -> tuple[Path, ImportReport]:
-    """Convert ``log`` into a measurement dataset at ``out`` (all or nothing)."""
+def import_log(log: str | Path | list[str | Path], out: str | Path, cfg: ImportConfig,
+               map_path: str | Path | None = None, overwrite: bool = False) -> tuple[Path, ImportReport]:
+    """Convert ``log`` (a file, or several one after the other: ``read_logs``) into a measurement
+    dataset at ``out`` (all or nothing)."""
     from acn.datasets.writer import DatasetWriter
 
-    log = Path(log)
+    logs = [Path(p) for p in log] if isinstance(log, (list, tuple)) else [Path(log)]
+    log = logs[0] if len(logs) == 1 else Path(f"{logs[0]} (+ {len(logs) - 1} more)")  # as messages name it
     cfg = replace(cfg, physics_hz=physics_hz_for(cfg.control_hz, cfg.physics_hz))
     for name, frame in (("--linvel-frame", cfg.linvel_frame), ("--angvel-frame", cfg.angvel_frame)):
         if frame not in FRAMES:
@@ -348,7 +379,7 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
         raise UserError(f"--imu-acc must be one of {', '.join(IMU_ACC_KINDS)} (or not given), got {cfg.imu_acc!r}")
     if sorted(cfg.leg_order) != sorted(FOOT_NAMES):
         raise UserError(f"--leg-order must name each of {', '.join(FOOT_NAMES)} once, got {', '.join(cfg.leg_order)}")
-    read_log = read_table(log)
+    read_log = read_logs(logs)
     table = read_log.columns
     mapping = read_map(Path(map_path) if map_path else None)
     cols = resolve_columns(table, mapping)
@@ -398,7 +429,8 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
     spread = float(np.percentile(np.abs(steps / period - 1.0), 99)) if len(steps) else 0.0
     meta = {
         "format_version": schema.FORMAT_VERSION, "paired": False,
-        "source": {"simulator": "log", "version": None, "file": log.name}, "target": None,
+        "source": {"simulator": "log", "version": None, "file": logs[0].name,
+                   **({"files": [p.name for p in logs]} if len(logs) > 1 else {})}, "target": None,
         "physics_dt": 1.0 / cfg.physics_hz, "substeps": cfg.physics_hz // cfg.control_hz,
         "control_hz": float(cfg.control_hz), "action_mode": cfg.action_mode,
         "kp": joint_gains(cfg.kp), "kd": joint_gains(cfg.kd),
@@ -432,7 +464,8 @@ def import_log(log: str | Path, out: str | Path, cfg: ImportConfig, map_path: st
                               hybrid=hybrid, quaternion=quaternion, partial_effort=partial_effort, unused=unused,
                               suggested_map=suggested, malformed=read_log.malformed,
                               text_rows=read_log.text_rows, text_example=read_log.text_example)
-        writer.meta.info[schema.ACN_KEY]["import"] = {"file": log.name, "rows": n, "transitions": transitions,
+        writer.meta.info[schema.ACN_KEY]["import"] = {"file": logs[0].name, "files": [p.name for p in logs],
+                          "rows": n, "transitions": transitions,
                           "rows_cut_nonfinite": report.cut_nonfinite,
                           "rows_malformed": len(report.malformed), "rows_with_text": report.text_rows,
                           "time_step_breaks": report.time_breaks,
