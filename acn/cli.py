@@ -601,7 +601,7 @@ def import_main(argv: list[str] | None = None) -> int:
               f"row(s) with non-finite values, split at {r.time_breaks} wrong time step(s), dropped "
               f"{r.dropped_short} one-row segment(s)")
         if r.malformed:
-            lines = ", ".join(str(n) for n in r.malformed[:5]) + (", ..." if len(r.malformed) > 5 else "")
+            lines = ", ".join(r.malformed[:5]) + (", ..." if len(r.malformed) > 5 else "")
             print(f"set aside {len(r.malformed)} row(s) with another number of fields than the header "
                   f"(line(s) {lines}): a row cut off where the logger stopped, or garbled")
         if r.text_rows:

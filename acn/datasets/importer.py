@@ -113,7 +113,7 @@ class ImportReport:
     partial_effort: list[str] = field(default_factory=list)  # effort.* columns of fewer than 12 joints: not stored
     unused: list[str] = field(default_factory=list)  # the log's columns no channel reads
     suggested_map: dict[str, str | dict] = field(default_factory=dict)  # unused columns named like channels it lacks
-    malformed: list[int] = field(default_factory=list)  # CSV lines set aside: another number of fields (read_table)
+    malformed: list[str] = field(default_factory=list)  # CSV lines set aside ("file:line" of several files; read_table)
     text_rows: int = 0     # rows with text among numbers, read as NaN (cut where a channel reads it)
     text_example: str = ""
 
