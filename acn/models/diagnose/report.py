@@ -37,6 +37,9 @@ JSON keys (the machine-readable contract):
   ranking fit, ``removed`` and ``longest_horizon_removed`` as in ``ranking``; [] if none),
   ``error_before`` and ``error_after`` (horizon -> group), ``headline_before``,
   ``headline_after``, ``explained``;
+- ``same_physics_together``: effects of the final model that together are the same physics as one
+  catalogue effect not in it while the PD is unsaturated (``Effect.together``: motor strength +
+  joint damping as PD gains), each ``effects`` and ``as``; [] if none;
 - ``model`` and ``final_model``: the model files before and after;
 - ``closed_loop`` (with ``--closed-loop``, else null): the robot re-run beside the model from
   held-out initial states (``transfer``): ``runs`` by name (``uncorrected`` = the model as
@@ -60,6 +63,7 @@ from acn.models.diagnose.compare import Comparison, group_errors
 from acn.models.diagnose.pipeline import Diagnosis
 from acn.models.diagnose.rank import Candidate, doubt, fits_noise, unidentified
 from acn.models.diagnose.transfer import closer_by, table as closed_loop_table
+from acn.toolkit.effects import EFFECT_NAMES, get_effect
 
 HEADLINE = ("one-step teacher-forced prediction error on held-out rows: RMS over every compared channel of "
             "(measured - predicted) / spread of the measured one-step change (1 = as wrong as predicting no motion)")
@@ -121,6 +125,25 @@ def _ties_text(a: Added) -> str:
     h = a.before.check
     return (f"the held-out one step could not tell it from {'; '.join(_tie(c, h) for c in a.ties[1:])} "
             f"(ranked, {_tie(a.ties[0], h)})")
+
+
+def _together(d: Diagnosis) -> list[dict]:
+    """Effects of the final model that together are the same physics as one catalogue effect not in
+    it, while the PD is unsaturated (``Effect.together``: motor strength + joint damping are PD
+    gains): each ``effects`` and ``as``, the reading."""
+    held = {t.name: t.values for t in d.final.model.effects}
+    out = []
+    for effect in map(get_effect, EFFECT_NAMES):
+        if effect.together and effect.name not in held and effect.reproduces and set(effect.reproduces) <= set(held):
+            said = effect.together({n: held[n] for n in effect.reproduces}, _kd(d))
+            if said:
+                out.append({"effects": list(effect.reproduces), "as": said})
+    return out
+
+
+def _together_text(d: Diagnosis) -> list[str]:
+    return [f"{' + '.join(t['effects'])} together, while the PD is unsaturated, the same physics as: {t['as']}"
+            for t in _together(d)]
 
 
 def _ties_json(a: Added) -> list[dict]:
@@ -218,6 +241,7 @@ def to_json(d: Diagnosis) -> dict:
         "where": d.where,
         "ranking": [_candidate(c, d.floor_mse) for c in d.ranking],
         "added": [_added(a, d.floor_mse, _kd(d)) for a in d.added],
+        "same_physics_together": _together(d),
         "chains": [c.to_json() for c in d.chains],
         "set_aside_on_final_fit": d.set_aside,
         "model": d.before.model.to_json(), "final_model": d.final.model.to_json(),
@@ -289,6 +313,8 @@ def terminal(d: Diagnosis) -> str:
         out += ["", f"{_step(a)}: {a.fit.effect.to_json(a.fit.values)}"]
         out += _notes(a, _kd(d))
         out += [f"headline {a.before.headline:.4f} -> {a.after.headline:.4f}", error_table(a.before, a.after)]
+    together = _together_text(d)
+    out += ["", *together] if together else []
     if len(d.chains) > 1:
         out += ["", "chains of effects tried by --auto (started with):"]
         out += [f"  {c.start}: {c.label}; {'KEPT, ' if c.kept else ''}{c.why}"
@@ -372,7 +398,7 @@ def write_html(d: Diagnosis, path: str | Path) -> Path:
                     f"{a.before.headline:.4f} &rarr; {a.after.headline:.4f}"
                     + "".join(f"<br><i>{html.escape(t)}</i>" for t in _notes(a, _kd(d)))
                     + "</li>"
-                    for a in d.added)
+                    for a in d.added) + "".join(f"<li><i>{html.escape(t)}</i></li>" for t in _together_text(d))
     chains = "".join(f"<li>started with {c.start}: <b>{html.escape(c.label)}</b>"
                      f"{' (kept)' if c.kept else ''}: {html.escape(c.why)}</li>" for c in d.chains) if len(d.chains) > 1 else ""
     checks_html = ("<p><b>Data checks</b> (the measurements' own consistency, before any model, and with the "

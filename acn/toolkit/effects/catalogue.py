@@ -84,6 +84,17 @@ def _pd_gains_alike(values, kd: float) -> str:
     return out
 
 
+def _pd_gains_together(values: dict, kd: float) -> str:
+    """Motor strength s and joint damping d together, while the PD is unsaturated (its velocity
+    target 0): torque s (kp e - kd qdot) - d qdot = s kp e - (s kd + d) qdot, i.e. PD gains
+    kp x s, kd x (s + d / kd). Means over joints; "" where kd is 0."""
+    if kd <= 0:
+        return ""
+    s = float(np.mean(values["motor_strength"]["scale"]))
+    d = float(np.mean(values["joint_damping"]["value"]))
+    return f"pd_gains kp_scale {s:.3g}, kd_scale {s + d / kd:.3g}"
+
+
 def _payload(params: ModelParams, values) -> None:
     params.payload_mass = float(values["mass"])
     params.payload_com = np.array([values["com_x"], values["com_y"], values["com_z"]], dtype=float)
@@ -156,7 +167,7 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
            (Parameter("kp_scale", "1", 1.0, 0.2, 3.0, per_joint=True, realistic=(0.6, 0.9)),
             Parameter("kd_scale", "1", 1.0, 0.0, 5.0, per_joint=True, realistic=(0.5, 0.9))),
            _pd_gains, mujoco="actuator gainprm / biasprm", pybullet="gains of the control law",
-           reproduces=("motor_strength", "joint_damping"), alike=_pd_gains_alike),
+           reproduces=("motor_strength", "joint_damping"), alike=_pd_gains_alike, together=_pd_gains_together),
     Effect("payload", "a mass rigidly attached to the trunk",
            (Parameter("mass", "kg", 0.0, 0.0, 20.0, realistic=(0.5, 4.0)),
             Parameter("com_x", "m", 0.0, -0.3, 0.3, realistic=(0.0, 0.05), signed=True),

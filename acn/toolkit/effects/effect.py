@@ -66,6 +66,8 @@ class Effect:
     # unsaturated (pd_gains: motor_strength at equal kp and kd scales); acn.models.diagnose.rank.tied_with_best
     alike: Callable[[Values, float], str] | None = None  # fitted values and the commanded kd (N m s/rad) -> the
     # same physics in the words of the effects it reproduces ("" where none), for the report
+    together: Callable[[dict[str, Values], float], str] | None = None  # the fitted values of every effect it
+    # reproduces (name -> values) and the commanded kd -> the same physics in its own words: ``alike`` reversed
 
     @property
     def per_joint(self) -> bool:
