@@ -19,6 +19,11 @@ position target, and gains sent with each command (``action_kp.<joint>``, ``acti
 are stored with the actions (``action.hybrid``: kp, kd, dq_des and tau_ff),
 and the model's PD runs them as sent (``_hybrid_actions``, ``SimConfig.hybrid``).
 
+Several logs (a file per run, the same columns) are read one after the other, each file's
+episodes apart (``read_logs``). A CSV is read as loggers and spreadsheets leave it
+(``read_table``): comment lines before the header, decimal commas, a row cut off or garbled (set
+aside and counted), text among numbers (read as NaN and counted).
+
 Transitions: s_{t+1} is the next row of the same episode. A row with a non-finite value, or a
 time step that differs from the control period by more than ``dt_tolerance`` of it, ends a
 segment: the episode is split there (never bridged), and the cut rows and splits are counted.
