@@ -842,6 +842,9 @@ def test_an_added_effect_names_the_candidates_one_step_could_not_tell_it_from():
     clear.score = strength.score - 0.01  # behind strength by the price of its parameters
     assert tied_with(clear, [clear, strength]) == [] and tied_with(strength, [strength, clear]) == [clear]
     assert tied_either_way(clear, [clear, strength, friction]) == [strength]
+    # a chain started past the best (add.other_starts): one as simple and clearly better is ahead, not tied
+    assert tied_with(friction, [friction, strength]) == [strength]
+    assert tied_either_way(friction, [friction, strength]) == []
     before, after = (SimpleNamespace(check=25, channel_error={25: np.full((1, 4), e)}) for e in (1.0, 0.5))
     step = Added(payload.fit, payload.judgement, before, after, [payload, strength])
     said = _notes(step, 1.5)[-1]

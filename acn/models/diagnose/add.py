@@ -372,6 +372,9 @@ def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge
         if progress:
             progress(f"trying {c.name} first", None)
         steps, _ = greedy(problem, first, shortlist, judge_rows, base_residual, floor_mse, [c], progress)
+        if steps and steps[0].name == c.name:  # its ties in the first ranking, which this chain started past
+            rivals = tied_either_way(c, ranking)
+            steps[0].ties = [c, *rivals] if rivals else []
         steps = revisit(problem, first, cfg, judge_rows, base_residual, steps, progress)
         other = Chain(steps, c.name)
         tried.append(other)

@@ -481,8 +481,16 @@ def tied_either_way(best: Candidate, ranking: list[Candidate]) -> list[Candidate
     beside ``best``, for the report. A richer ``best`` that ``prefer_longer`` put before a simpler
     one it predicts one step significantly better than is tied from the simpler one's side only (a
     fresh draw of a 1.2 kg payload beside a 3 ms delay: motor strength first by price, the payload
-    z 3.4 better at one step)."""
-    return [c for c in ranking if c is not best and c.judgement.significant and not doubt(c)
+    z 3.4 better at one step). Not a candidate of no more parameters that predicts one step
+    significantly better than ``best``: it is ahead, not tied (``add.other_starts`` starts chains
+    past it)."""
+    e_best = (best.judgement.residual_after ** 2).mean(1)
+
+    def ahead(c: Candidate) -> bool:
+        e_c = (c.judgement.residual_after ** 2).mean(1)
+        return len(c.fit.x) <= len(best.fit.x) and paired_z(e_best - e_c) >= PARSIMONY_Z
+
+    return [c for c in ranking if c is not best and c.judgement.significant and not doubt(c) and not ahead(c)
             and (one_step_tie(best, c) or (c.score >= best.score and one_step_tie(c, best)))]
 
 
