@@ -315,7 +315,7 @@ def test_import_errors_are_one_line(tmp_path, log_rows, acn):
     (tmp_path / "threshold.json").write_text('{"FR_hip_pos": {"column": "FR_hip_pos", "threshold": 0.1}}')
     for args, message in [
         ([str(tmp_path / "nope.csv")], "does not exist"),
-        ([str(tmp_path / "log.txt")], ".csv or .parquet"),
+        ([str(tmp_path / "log.txt")], ".csv, .parquet or .jsonl"),
         ([str(tmp_path / "log.csv"), "--map", str(tmp_path / "bad.json")], "not a channel"),
         ([str(tmp_path / "log.csv"), "--map", str(tmp_path / "threshold.json")], "not a contact channel"),
         ([str(tmp_path / "log.csv"), "--control-hz", "0"], ">= 1"),
@@ -353,6 +353,8 @@ def _write_variant(path, rows: dict, how: str) -> None:
     elif how == "date-time stamps":
         stamps = (1.7e9 + rows["timestamp"] + 10 * rows["episode_index"]) * 1e6
         pq.write_table(pa.table({**rows, "timestamp": pa.array(stamps.astype(np.int64), pa.timestamp("us"))}), str(path))
+    elif how == "JSON lines":
+        path.write_text("".join(json.dumps(r) + "\n" for r in pa.table(rows).to_pylist()))
     else:
         path.write_text(_csv_text(rows, how), encoding="utf-8-sig" if how == "comments, BOM, CRLF" else "utf-8",
                         newline="")
@@ -383,7 +385,7 @@ def _csv_text(rows: dict, how: str) -> str:
 @pytest.mark.parametrize("how, suffix", [("semicolons", "csv"), ("empty mocap columns", "parquet"),
                                          ("date-time stamps", "parquet"), ("comments, BOM, CRLF", "csv"),
                                          ("decimal commas", "csv"), ("a last line cut off", "csv"),
-                                         ("a header written again", "csv")])
+                                         ("a header written again", "csv"), ("JSON lines", "jsonl")])
 def test_logs_as_other_code_writes_them_import(tmp_path, log_rows, acn, how, suffix):
     """Each imports whole, to the logged values (float32 storage); a last row cut off mid-line is
     set aside, named by its line, and the rest imported; a header written again is read as a row
@@ -504,3 +506,27 @@ def test_a_log_written_as_one_file_per_run_imports_as_one_dataset(tmp_path, log_
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert "other.csv has other columns than" in r.stderr and "it adds episode_index" in r.stderr, r.stderr
     assert not (tmp_path / "no").exists()
+
+
+def test_nested_json_lines_are_flattened_and_get_a_draft_map(tmp_path, log_rows, acn):
+    """A JSON-lines log with nested records ({"imu": {"acc": {"x": ...}}}) and an array of joint
+    angles: flattened to imu.acc.x and q[0] ..., named in the draft map, and with it imported to the
+    logged values."""
+    records = []
+    for r in pa.table(log_rows).to_pylist():
+        imu = {axis: r.pop(f"imu_acc_{axis}") for axis in "xyz"}
+        q = [r.pop(f"{j}_pos") for j in JOINT_NAMES]
+        records.append({**r, "imu": {"acc": imu}, "q": q})
+    (tmp_path / "log.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    r = acn("import", str(tmp_path / "log.jsonl"), "--out", str(tmp_path / "no_map"), *CONTROL)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    draft = json.loads(r.stderr.strip().split("axes x, y, z): ", 1)[1])
+    assert draft["imu_acc_x"] == "imu.acc.x" and draft["FR_hip_pos"] == "q[0]", draft
+    (tmp_path / "map.json").write_text(json.dumps(draft))
+    r = acn("import", str(tmp_path / "log.jsonl"), "--out", str(tmp_path / "ds"), *CONTROL, "--map",
+            str(tmp_path / "map.json"))
+    assert r.returncode == 0 and "98 transitions in 2 episode(s)" in r.stdout, r.stdout + r.stderr
+    m = load_measurements(tmp_path / "ds")
+    assert m.missing == []
+    acc = m.state[:49, [STATE_NAMES.index(f"imu_acc_{axis}") for axis in "xyz"]]
+    np.testing.assert_allclose(acc, np.column_stack([log_rows[f"imu_acc_{a}"][:49] for a in "xyz"]), atol=1e-4)

@@ -1,4 +1,4 @@
-"""A robot log (CSV or Parquet table) -> a measurement dataset (``acn-import``).
+"""A robot log (CSV, Parquet or JSON-lines table) -> a measurement dataset (``acn-import``).
 
 The log has one row per control step: ``episode_index`` (optional, default 0), ``timestamp``
 (s), state channels named as in ``acn.toolkit.state`` (``base_pos_x``, ..., ``FR_hip_pos``,
@@ -156,8 +156,9 @@ class LogTable:
 
 
 def read_table(path: Path) -> LogTable:
-    """Columns of a CSV or Parquet file as float arrays (non-numeric columns are skipped; date-time
-    columns become seconds since the epoch). A CSV's separator is read from its header: comma,
+    """Columns of a CSV, Parquet or JSON-lines file as float arrays (non-numeric columns are skipped;
+    date-time columns become seconds since the epoch; nested records are flattened, their columns
+    named "outer.inner"). A CSV's separator is read from its header: comma,
     semicolon or tab; ``#`` comment lines before the header are skipped; column names are stripped
     of surrounding spaces and quotes. A CSV row with another number of fields than the header (a
     last line cut off where the logger stopped mid-write, a line garbled by two writers) is set
@@ -176,8 +177,14 @@ def read_table(path: Path) -> LogTable:
             import pyarrow.parquet as pq
 
             table = pq.read_table(path)
+        elif suffix in (".jsonl", ".ndjson"):
+            import pyarrow.json as pajson
+
+            table = pajson.read_json(path)
         else:
-            raise UserError(f"{path}: a log must be a .csv or .parquet file")
+            raise UserError(f"{path}: a log must be a .csv, .parquet or .jsonl (one JSON object per line) file")
+        while any(pa.types.is_struct(c.type) for c in table.columns):  # {"imu": {"acc_x": ...}} -> imu.acc_x
+            table = table.flatten()
     except (pa.ArrowInvalid, OSError) as e:
         raise UserError(f"cannot read {path}: {str(e).splitlines()[0]}") from None
     if malformed and len(malformed) >= MALFORMED_MAX * (len(malformed) + table.num_rows):
