@@ -1,7 +1,8 @@
-"""acn-import: robot logs (CSV/Parquet) from code outside acn-collect become measurement datasets."""
+"""acn-import: robot logs (CSV/Parquet/JSON lines) from code outside acn-collect become measurement datasets."""
 
 from __future__ import annotations
 
+import gzip
 import json
 
 import numpy as np
@@ -355,6 +356,9 @@ def _write_variant(path, rows: dict, how: str) -> None:
         pq.write_table(pa.table({**rows, "timestamp": pa.array(stamps.astype(np.int64), pa.timestamp("us"))}), str(path))
     elif how == "JSON lines":
         path.write_text("".join(json.dumps(r) + "\n" for r in pa.table(rows).to_pylist()))
+    elif how == "gzip-compressed, after comments":
+        with gzip.open(path, "wt") as f:
+            f.write("# logged by walker 2.1\n" + "\n".join(_csv_lines(rows)) + "\n")
     else:
         path.write_text(_csv_text(rows, how), encoding="utf-8-sig" if how == "comments, BOM, CRLF" else "utf-8",
                         newline="")
@@ -385,7 +389,8 @@ def _csv_text(rows: dict, how: str) -> str:
 @pytest.mark.parametrize("how, suffix", [("semicolons", "csv"), ("empty mocap columns", "parquet"),
                                          ("date-time stamps", "parquet"), ("comments, BOM, CRLF", "csv"),
                                          ("decimal commas", "csv"), ("a last line cut off", "csv"),
-                                         ("a header written again", "csv"), ("JSON lines", "jsonl")])
+                                         ("a header written again", "csv"), ("JSON lines", "jsonl"),
+                                         ("gzip-compressed, after comments", "csv.gz")])
 def test_logs_as_other_code_writes_them_import(tmp_path, log_rows, acn, how, suffix):
     """Each imports whole, to the logged values (float32 storage); a last row cut off mid-line is
     set aside, named by its line, and the rest imported; a header written again is read as a row

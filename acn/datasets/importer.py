@@ -79,6 +79,7 @@ MAP_ENTRY_KEYS = ("column", "scale", "offset", "threshold")
 _DECIMAL_COMMA = re.compile(r"^[-+]?\d+,\d+([eE][-+]?\d+)?$")
 _DECIMAL_POINT = re.compile(r"^[-+]?\d*\.\d+([eE][-+]?\d+)?$")
 MOSTLY_NUMBERS = 0.9  # a text column with this share of numbers is a column of numbers with some text (read_table)
+COMPRESSED = (".gz", ".bz2", ".zst")  # a log.csv.gz is read as its CSV (pyarrow decompresses by extension)
 MALFORMED_MAX = 0.1  # a CSV with this share of rows of the wrong number of fields or more is refused (read_table)
 JITTER_MAX = 0.25  # a time-step spread up to this share of the period is taken as jitter (ImportReport.tolerance_hint)
 
@@ -156,7 +157,8 @@ class LogTable:
 
 
 def read_table(path: Path) -> LogTable:
-    """Columns of a CSV, Parquet or JSON-lines file as float arrays (non-numeric columns are skipped;
+    """Columns of a CSV, Parquet or JSON-lines file (CSV and JSON lines also compressed,
+    ``COMPRESSED``) as float arrays (non-numeric columns are skipped;
     date-time columns become seconds since the epoch; nested records are flattened, their columns
     named "outer.inner"). A CSV's separator is read from its header: comma,
     semicolon or tab; ``#`` comment lines before the header are skipped; column names are stripped
@@ -168,7 +170,9 @@ def read_table(path: Path) -> LogTable:
 
     if not path.is_file():
         raise UserError(f"log file {path} does not exist")
-    suffix = path.suffix.lower()
+    suffixes = [x.lower() for x in path.suffixes]
+    compressed = bool(suffixes) and suffixes[-1] in COMPRESSED  # read through pyarrow's detection by extension
+    suffix = suffixes[-2] if compressed and len(suffixes) > 1 else path.suffix.lower()
     malformed: list[tuple[int, int, int]] = []  # line, fields expected, fields found
     try:
         if suffix == ".csv":
@@ -182,7 +186,8 @@ def read_table(path: Path) -> LogTable:
 
             table = pajson.read_json(path)
         else:
-            raise UserError(f"{path}: a log must be a .csv, .parquet or .jsonl (one JSON object per line) file")
+            raise UserError(f"{path}: a log must be a .csv, .parquet or .jsonl (one JSON object per line) file, "
+                            f"the first and last also compressed ({', '.join(COMPRESSED)})")
         while any(pa.types.is_struct(c.type) for c in table.columns):  # {"imu": {"acc_x": ...}} -> imu.acc_x
             table = table.flatten()
     except (pa.ArrowInvalid, OSError) as e:
@@ -302,8 +307,11 @@ def _preamble(path: Path) -> tuple[int, str, str]:
     first), its separator (whichever of comma, semicolon and tab the header has most of) and its
     decimal point: a comma where the separator is not one and the first row writes its numbers
     so (``0,25;1,5``: a spreadsheet in a European locale)."""
-    with open(path, "rb") as f:
-        lines = (raw.decode("utf-8-sig", errors="replace").strip() for raw in f)
+    import pyarrow as pa
+
+    with pa.input_stream(str(path), compression="detect") as f:  # the first MiB holds the header and a row
+        lines = iter(f.read(1 << 20).decode("utf-8-sig", errors="replace").splitlines())
+        lines = (line.strip() for line in lines)
         for skipped, line in enumerate(lines):
             if line and not line.startswith("#"):
                 separator = max((",", ";", "\t"), key=line.count)
