@@ -339,7 +339,7 @@ def improvement(new: list[Added], old: list[Added]) -> dict:
     """How much better the final model of chain ``new`` predicts than that of ``old``: the share
     of ``old``'s held-out one-step error it removes (same judge rows), its paired z (blocks of
     rows), and the share of ``old``'s open-loop error at the longest horizon it removes."""
-    e_new, e_old = ((c[-1].judgement.residual_after ** 2).mean(1) for c in (new, old))
+    e_new, e_old = (c[-1].judgement.row_errors for c in (new, old))
     return {"one_step_removed": 1.0 - float(e_new.mean() / e_old.mean()) if e_old.mean() > 0 else 0.0,
             "z": paired_z(e_old - e_new), "longest_horizon_removed": longest_removed(old[-1].after, new[-1].after)}
 

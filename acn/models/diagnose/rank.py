@@ -72,6 +72,11 @@ class Judgement:
     residual_after: np.ndarray  # (N, C) held-out residuals with the effect
     by_longest: bool = False     # significant by its longest-horizon gain, not at one step (``uneven``)
 
+    @property
+    def row_errors(self) -> np.ndarray:
+        """(N,) each held-out row's mean squared residual with the effect: what ``paired_z`` compares."""
+        return (self.residual_after ** 2).mean(1)
+
     def explained(self, floor_mse: float) -> float:
         """Share 0..1 of the structured error (MSE above ``floor_mse``) removed."""
         return explained_share(self.mse_before, self.mse_after, floor_mse)
@@ -418,10 +423,8 @@ def prefer_simpler(ranking: list[Candidate], horizon: LongestHorizon | None = No
     for c in sorted(free[1:], key=lambda c: len(c.fit.x)):
         if len(c.fit.x) >= len(best.fit.x) or not c.judgement.significant:
             continue
-        e_simple = (c.judgement.residual_after ** 2).mean(1)
-        e_best = (best.judgement.residual_after ** 2).mean(1)
         close = c.judgement.removed >= PARSIMONY_SHARE * best.judgement.removed
-        gives_way = paired_z(e_simple - e_best) < PARSIMONY_Z
+        gives_way = not better_at_one_step(best, c)
         if not gives_way:  # the richer one predicts one step significantly better: and further?
             margin = longer_margin(horizon, best, c)
             gives_way = (margin is not None and margin <= 0.0) or (close and (margin is None or margin < LONGER_MARGIN))
@@ -471,8 +474,13 @@ def one_step_tie(best: Candidate, c: Candidate) -> bool:
     both PD gains fit motor strength, and whatever else the PD's extra freedom absorbs)."""
     if len(c.fit.x) > len(best.fit.x):
         return c.judgement.removed >= best.judgement.removed and best.name not in c.fit.effect.reproduces
-    e_best, e_c = ((x.judgement.residual_after ** 2).mean(1) for x in (best, c))
-    return paired_z(e_c - e_best) < PARSIMONY_Z
+    return not better_at_one_step(best, c)
+
+
+def better_at_one_step(a: Candidate, b: Candidate) -> bool:
+    """Whether ``a`` predicts the held-out one step significantly better than ``b`` (paired z of
+    the rows' errors, blocks of rows, >= ``PARSIMONY_Z``)."""
+    return paired_z(b.judgement.row_errors - a.judgement.row_errors) >= PARSIMONY_Z
 
 
 def tied_either_way(best: Candidate, ranking: list[Candidate]) -> list[Candidate]:
@@ -484,11 +492,8 @@ def tied_either_way(best: Candidate, ranking: list[Candidate]) -> list[Candidate
     z 3.4 better at one step). Not a candidate of no more parameters that predicts one step
     significantly better than ``best``: it is ahead, not tied (``add.other_starts`` starts chains
     past it)."""
-    e_best = (best.judgement.residual_after ** 2).mean(1)
-
     def ahead(c: Candidate) -> bool:
-        e_c = (c.judgement.residual_after ** 2).mean(1)
-        return len(c.fit.x) <= len(best.fit.x) and paired_z(e_best - e_c) >= PARSIMONY_Z
+        return len(c.fit.x) <= len(best.fit.x) and better_at_one_step(c, best)
 
     return [c for c in ranking if c is not best and c.judgement.significant and not doubt(c) and not ahead(c)
             and (one_step_tie(best, c) or (c.score >= best.score and one_step_tie(c, best)))]
