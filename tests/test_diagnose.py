@@ -149,6 +149,7 @@ def test_a_richer_effect_gives_way_to_a_simpler_one_beside_the_others(tmp_path):
     noisy logs), then friction. Judged again beside friction, the gains give way to the simpler
     motor_strength and the chain is refitted (``add.revisit``)."""
     from acn.models.diagnose.add import revisit
+    from acn.models.diagnose.rank import ties_of
 
     data = measured(tmp_path, {"motor_strength": {"scale": 0.85}, "joint_friction": {"value": 0.2}})
     nominal = Model.parse("mujoco")
@@ -156,6 +157,10 @@ def test_a_richer_effect_gives_way_to_a_simpler_one_beside_the_others(tmp_path):
     cfg = replace(FAST, finest="shared", candidates=("pd_gains", "joint_friction", "motor_strength", "joint_damping"))
     d = diagnose(data, nominal, cfg, add=["pd_gains", "joint_friction"])
     assert [a.name for a in d.added] == ["pd_gains", "joint_friction"]
+    # the first effect named carries its ties in the first ranking, as --auto's do; the next one, added
+    # after it without a ranking, none
+    assert d.added[0].ties == ties_of(next(c for c in d.ranking if c.name == "pd_gains"), d.ranking)
+    assert d.added[1].ties == []
     # the report reads the gains in the words of the effects they reproduce (Effect.alike)
     assert "while the PD is unsaturated, the same physics as: motor_strength" in terminal(d), terminal(d)
     residual = d.problem.residual_of(nominal.sim_config(d.problem.control), d.judge_rows)
@@ -828,7 +833,7 @@ def test_an_added_effect_names_the_candidates_one_step_could_not_tell_it_from():
     values and both horizons' shares, the added one first. An added effect's parameters are printed
     apart from those of effects refitted with it."""
     from acn.models.diagnose.add import Added
-    from acn.models.diagnose.rank import tied_either_way, tied_with
+    from acn.models.diagnose.rank import ties_of, tied_either_way, tied_with
     from acn.models.diagnose.report import _notes, _params_text, _ties_json
 
     rng = np.random.default_rng(3)
@@ -842,9 +847,10 @@ def test_an_added_effect_names_the_candidates_one_step_could_not_tell_it_from():
     clear.score = strength.score - 0.01  # behind strength by the price of its parameters
     assert tied_with(clear, [clear, strength]) == [] and tied_with(strength, [strength, clear]) == [clear]
     assert tied_either_way(clear, [clear, strength, friction]) == [strength]
+    assert ties_of(clear, [clear, strength, friction]) == [clear, strength]  # Added.ties: the added one first
     # a chain started past the best (add.other_starts): one as simple and clearly better is ahead, not tied
     assert tied_with(friction, [friction, strength]) == [strength]
-    assert tied_either_way(friction, [friction, strength]) == []
+    assert tied_either_way(friction, [friction, strength]) == [] and ties_of(friction, [friction, strength]) == []
     before, after = (SimpleNamespace(check=25, channel_error={25: np.full((1, 4), e)}) for e in (1.0, 0.5))
     step = Added(payload.fit, payload.judgement, before, after, [payload, strength])
     said = _notes(step, 1.5)[-1]

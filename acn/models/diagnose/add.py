@@ -48,8 +48,9 @@ class Added:
     judgement: Judgement
     before: Comparison
     after: Comparison
-    ties: list[Candidate] = field(default_factory=list)  # ``--auto``: the candidate it was added as, first, and
-    # those of the same ranking the held-out one step could not tell from it (``rank.tied_either_way``); [] if none
+    ties: list[Candidate] = field(default_factory=list)  # the candidate it was added as, first, and those of the
+    # same ranking the held-out one step could not tell from it (``rank.tied_either_way``; ``--auto``'s effects and
+    # the first one ``--add`` names); [] if none
 
     @property
     def name(self) -> str:
@@ -308,8 +309,7 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
         if progress:
             progress(f"adding {best.name}", None)
         step = add_effect(problem, current.model, best.name, cfg, judge_rows, residual, current, start=best.fit)
-        rivals = tied_either_way(best, open_)
-        step.ties = [best, *rivals] if rivals else []
+        step.ties = ties_of(best, open_)
         little = too_little(step.judgement, longer_gain(step), floor_mse)
         why = final_doubt(step) or (f"its final fit {little}" if little else "")
         if best.name in names(added) and (why or not step.refines or fits_noise(longer_gain(step), step.fit.effect)):
@@ -373,8 +373,7 @@ def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge
             progress(f"trying {c.name} first", None)
         steps, _ = greedy(problem, first, shortlist, judge_rows, base_residual, floor_mse, [c], progress)
         if steps and steps[0].name == c.name:  # its ties in the first ranking, which this chain started past
-            rivals = tied_either_way(c, ranking)
-            steps[0].ties = [c, *rivals] if rivals else []
+            steps[0].ties = ties_of(c, ranking)
         steps = revisit(problem, first, cfg, judge_rows, base_residual, steps, progress)
         other = Chain(steps, c.name)
         tried.append(other)

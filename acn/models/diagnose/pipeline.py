@@ -46,7 +46,8 @@ from acn.models.diagnose.pairing import action_row
 from acn.models.diagnose.problem import DiagnoseConfig, Problem, corrected, prepare
 from acn.models.diagnose.rate import physics_rate
 from acn.models.diagnose.rank import (STRUCTURED_SHARE, Candidate, doubt, explained_share, finer_look,
-                                      fits_noise_by_size, implausible, one_step_only, rank)
+                                      fits_noise_by_size, implausible, one_step_only, rank,
+                                      ties_of)
 from acn.models.diagnose.where import breakdown
 from acn.toolkit.effects import Model, get_effect
 
@@ -270,8 +271,11 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
     current, current_residual = before, residual
     for name in add:
         say(f"adding {name}", None)
-        start = next((c.fit for c in ranking if c.name == name), None) if not added else None
-        step = add_effect(problem, current.model, name, cfg, judge_rows, current_residual, current, start=start)
+        ranked = next((c for c in ranking if c.name == name), None) if not added else None
+        step = add_effect(problem, current.model, name, cfg, judge_rows, current_residual, current,
+                          start=ranked.fit if ranked else None)
+        if ranked is not None:  # the first effect named: what the first ranking cannot tell it from
+            step.ties = ties_of(ranked, ranking)
         added.append(step)
         current, current_residual = step.after, step.judgement.residual_after
     chains: list[Chain] = []

@@ -499,6 +499,13 @@ def tied_either_way(best: Candidate, ranking: list[Candidate]) -> list[Candidate
             and (one_step_tie(best, c) or (c.score >= best.score and one_step_tie(c, best)))]
 
 
+def ties_of(added: Candidate, ranking: list[Candidate]) -> list[Candidate]:
+    """``Added.ties`` of an effect added as the ranked candidate ``added``: it first, then those
+    ``tied_either_way`` with it; [] if none."""
+    rivals = tied_either_way(added, ranking)
+    return [added, *rivals] if rivals else []
+
+
 def prefer_longer(ranking: list[Candidate]) -> list[Candidate]:
     """Put in the place of the best candidate the one ``tied_with_best`` that removes at least
     ``LONGER_MARGIN`` more of the open-loop error at the longest horizon (``longer_gain``, set

@@ -32,9 +32,10 @@ JSON keys (the machine-readable contract):
   ``refines`` (the granularity of an effect added before and fitted finer in this step, else
   null), ``same_physics_as`` (the effect in the words of those it reproduces while the PD is
   unsaturated, ``Effect.alike``: PD gains as motor strength and joint damping; else null),
-  ``one_step_ties`` (``--auto``: the candidate it was added as, then those of the same ranking the
-  held-out one step could not tell from it, ``rank.tied_either_way``, each ``name``, ``params`` of its
-  ranking fit, ``removed`` and ``longest_horizon_removed`` as in ``ranking``; [] if none),
+  ``one_step_ties`` (``--auto``'s effects and the first one ``--add`` names: the candidate it was
+  added as, then those of the same ranking the held-out one step could not tell from it,
+  ``rank.tied_either_way``, each ``name``, ``params`` of its ranking fit, ``removed`` and
+  ``longest_horizon_removed`` as in ``ranking``; [] if none),
   ``error_before`` and ``error_after`` (horizon -> group), ``headline_before``,
   ``headline_after``, ``explained``;
 - ``same_physics_together``: effects of the final model that together are the same physics as one
