@@ -30,7 +30,7 @@ from acn.models.diagnose.fitting import (GRANULARITIES, EffectFit, default_granu
 from acn.models.diagnose.problem import DiagnoseConfig, Problem
 from acn.models.diagnose.rank import (LARGE_IMPROVEMENT, PARSIMONY_Z, STRUCTURED_SHARE, Candidate, Judgement, doubt,
                                       finer_look, fits_noise, implausible, judge, paired_z, rank, rank_rows,
-                                      tied_either_way)
+                                      ties_of)
 from acn.toolkit.effects import Model, get_effect
 
 AUTO_MIN_EXPLAINED = 0.05  # --auto stops when the best candidate explains less of what is left
