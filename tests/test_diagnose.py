@@ -196,9 +196,36 @@ def test_two_effects_one_stood_in_for_are_found_from_another_start(tmp_path):
     # Every chain tried is listed with why it was kept or set aside, where the user reads
     reported = replace(d, added=chain, chains=tried)
     text, page = terminal(reported), write_html(reported, tmp_path / "r.html").read_text()
+    assert set(kept.versus["horizons_removed"]) == {5}  # each open-loop horizon compared (FAST: 1 and 5 steps)
+    assert "5-step error" in kept.why
     for c in tried:
         assert f"  {c.start}: {c.label}; " in text and c.why in text
         assert f"started with {c.start}: <b>{c.label}</b>" in page
+
+
+def test_a_chain_replaces_the_kept_one_where_it_predicts_better_at_more_horizons():
+    """``add.predicts_better``: significantly better at one step and not worse at the longest
+    horizon (as before), or, where the horizons disagree, better at more of them than worse, better
+    at an open-loop one and by more than it loses (the product of the error ratios). The first two
+    are fresh draws under attitude feedback whose true effects were in the chain set aside before
+    this rule; the noise case is a chain that wins the one step alone."""
+    from acn.models.diagnose.add import horizon_votes, predicts_better
+
+    def v(one, z, h5, h25):
+        return {"one_step_removed": one, "z": z, "longest_horizon_removed": h25, "horizons_removed": {5: h5, 25: h25}}
+
+    limit_and_gains = v(0.063, 7.7, 0.085, -0.059)  # one step and 5 steps better, 25 steps worse
+    lag = v(-0.081, -5.9, 0.144, 0.383)             # one step worse, 5 and 25 steps better
+    assert horizon_votes(limit_and_gains) == (2, 1) and predicts_better(limit_and_gains)
+    assert horizon_votes(lag) == (2, 1) and predicts_better(lag)
+    assert predicts_better(v(0.06, 3.0, -0.01, 0.02))          # better at one step, the longest not worse
+    noise = v(0.06, 3.0, 0.01, -0.02)                         # one step alone: what fitting the noise gains
+    assert horizon_votes(noise) == (1, 0) and not predicts_better(noise)
+    assert not predicts_better(v(0.03, 1.5, 0.04, 0.04))       # within every margin
+    far_worse = v(0.08, 4.0, 0.10, -0.30)                     # two horizons won, but by less than 25 steps lost
+    assert horizon_votes(far_worse) == (2, 1) and not predicts_better(far_worse)
+    assert not predicts_better(v(-0.3, -9.0, 0.2, -0.1))       # more lost than won
+    assert predicts_better(v(0.0, 0.4, 0.06, 0.06))            # both open-loop horizons, one step even
 
 
 def test_nominal_data_is_none(tmp_path):
