@@ -406,7 +406,10 @@ def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge
     the 25-step open-loop error 61 % lower. Another chain replaces the one kept when its final
     model predicts better (``predicts_better``): at one step significantly and at the longest
     horizon too, by the margins ``greedy`` asks of an added effect, or, where the horizons
-    disagree, at more of them than worse.
+    disagree, at more of them than worse. A chain of the same effects in another order is judged
+    alike: fitted from other starting points, its values can be better (a fresh draw under
+    feedback: armature 0.0327 added first, 0.0254 added after the torque limit, for 0.0253; one
+    step 2.4 % better, z 7.0, 5 and 25 steps 12 % and 11 %).
     """
     if not chain:
         return chain, []
@@ -428,13 +431,13 @@ def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge
         if not steps:
             other.why = f"{c.name} is not added on its own final fit"
             continue
-        if sorted(other.names) == sorted(kept.names):
-            other.why = "the same effects"
-            continue
+        # The same effects added in another order are fitted from other starting points: the
+        # chain that predicts better by the same rule keeps its values.
+        same = " (the same effects, fitted otherwise)" if sorted(other.names) == sorted(kept.names) else ""
         other.versus = v = improvement(steps, kept.steps)
         gains = f"one-step error {-v['one_step_removed']:+.1%} (z {v['z']:.1f})"
         gains += "".join(f", {h}-step error {-share:+.0%}" for h, share in v["horizons_removed"].items())
-        gains += f" against {kept.label}"
+        gains += f" against {kept.label}{same}"
         if predicts_better(v):
             kept.kept, kept.why = False, f"replaced by the chain started with {c.name}"
             kept, other.kept, other.why = other, True, f"predicts better: {gains}"
