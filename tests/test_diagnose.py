@@ -208,8 +208,9 @@ def test_a_chain_replaces_the_kept_one_where_it_predicts_better_at_more_horizons
     horizon (as before), or, where the horizons disagree, better at more of them than worse, better
     at an open-loop one and by more than it loses (the product of the error ratios). The first two
     are fresh draws under attitude feedback whose true effects were in the chain set aside before
-    this rule; the noise case is a chain that wins the one step alone."""
-    from acn.models.diagnose.add import horizon_votes, predicts_better
+    this rule; the noise case is a chain that wins the one step alone. A chain of fewer effects
+    replaces the kept one where it predicts as well."""
+    from acn.models.diagnose.add import horizon_votes, predicts_as_well, predicts_better
 
     def v(one, z, h5, h25):
         return {"one_step_removed": one, "z": z, "longest_horizon_removed": h25, "horizons_removed": {5: h5, 25: h25}}
@@ -226,6 +227,12 @@ def test_a_chain_replaces_the_kept_one_where_it_predicts_better_at_more_horizons
     assert horizon_votes(far_worse) == (2, 1) and not predicts_better(far_worse)
     assert not predicts_better(v(-0.3, -9.0, 0.2, -0.1))       # more lost than won
     assert predicts_better(v(0.0, 0.4, 0.06, 0.06))            # both open-loop horizons, one step even
+    # with fewer effects, predicting as well is enough (add.predicts_as_well): a fresh draw whose kept chain had
+    # an actuator lag beside the true delay and PD gains; without it, no horizon worse and the product below 1
+    without_lag = v(0.004, 1.5, 0.035, 0.039)
+    assert not predicts_better(without_lag) and predicts_as_well(without_lag)
+    assert not predicts_as_well(v(0.02, 2.5, 0.03, -0.06))   # 25 steps worse by more than the margin
+    assert not predicts_as_well(v(-0.04, -3.0, 0.0, 0.01))   # no horizon worse by a margin, but worse overall
 
 
 def test_nominal_data_is_none(tmp_path):
