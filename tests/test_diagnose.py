@@ -205,8 +205,8 @@ def test_two_effects_one_stood_in_for_are_found_from_another_start(tmp_path):
 
 def test_a_chain_replaces_the_kept_one_where_it_predicts_better_at_more_horizons():
     """``add.predicts_better``: significantly better at one step and not worse at the longest
-    horizon (as before), or, where the horizons disagree, better at more of them than worse, better
-    at an open-loop one and by more than it loses (the product of the error ratios). The first two
+    horizon (as before), or, where the horizons disagree, better at two of them or more, at more
+    than worse, and by more than it loses (the product of the error ratios). The first two
     are fresh draws under attitude feedback whose true effects were in the chain set aside before
     this rule; the noise case is a chain that wins the one step alone. A chain of fewer effects
     replaces the kept one where it predicts as well."""
@@ -227,6 +227,8 @@ def test_a_chain_replaces_the_kept_one_where_it_predicts_better_at_more_horizons
     assert horizon_votes(far_worse) == (2, 1) and not predicts_better(far_worse)
     assert not predicts_better(v(-0.3, -9.0, 0.2, -0.1))       # more lost than won
     assert predicts_better(v(0.0, 0.4, 0.06, 0.06))            # both open-loop horizons, one step even
+    extra_lag = v(-0.001, -0.6, 0.021, 0.097)                 # one horizon alone (a chain with an extra lag)
+    assert horizon_votes(extra_lag) == (1, 0) and not predicts_better(extra_lag)
     # with fewer effects, predicting as well is enough (add.predicts_as_well): a fresh draw whose kept chain had
     # an actuator lag beside the true delay and PD gains; without it, no horizon worse and the product below 1
     without_lag = v(0.004, 1.5, 0.035, 0.039)
