@@ -191,14 +191,17 @@ def add_effect(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, j
     return Added(fit, judgement, before, compare(problem, fit.model, cfg))
 
 
+def removed_at(before: Comparison, after: Comparison, h: int) -> float:
+    """Share of ``before``'s open-loop error (mean square over channels) at horizon ``h`` that
+    ``after`` removes."""
+    b, a = (np.mean(c.channel_error[h] ** 2) for c in (before, after))
+    return 1.0 - float(a / b) if b > 0 else 0.0
+
+
 def longest_removed(before: Comparison, after: Comparison) -> float | None:
     """Share of ``before``'s open-loop error at the check's horizon (> 1; ``Comparison.check``) that
     ``after`` removes (None with one-step horizons only)."""
-    h = before.check
-    if h <= 1:
-        return None
-    b, a = (np.mean(c.channel_error[h] ** 2) for c in (before, after))
-    return 1.0 - float(a / b) if b > 0 else 0.0
+    return removed_at(before, after, before.check) if before.check > 1 else None
 
 
 def longer_gain(step: Added) -> float | None:
@@ -342,10 +345,7 @@ def improvement(new: list[Added], old: list[Added]) -> dict:
     open-loop horizon compared (``horizons_removed``: steps -> share)."""
     e_new, e_old = (c[-1].judgement.row_errors for c in (new, old))
     before, after = old[-1].after, new[-1].after
-    horizons = {}
-    for h in sorted(k for k in before.channel_error if k > 1):
-        b, a = (np.mean(c.channel_error[h] ** 2) for c in (before, after))
-        horizons[h] = 1.0 - float(a / b) if b > 0 else 0.0
+    horizons = {h: removed_at(before, after, h) for h in sorted(before.channel_error) if h > 1}
     return {"one_step_removed": 1.0 - float(e_new.mean() / e_old.mean()) if e_old.mean() > 0 else 0.0,
             "z": paired_z(e_old - e_new), "longest_horizon_removed": longest_removed(before, after),
             "horizons_removed": horizons}
@@ -453,11 +453,11 @@ def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge
         gains = f"one-step error {-v['one_step_removed']:+.1%} (z {v['z']:.1f})"
         gains += "".join(f", {h}-step error {-share:+.0%}" for h, share in v["horizons_removed"].items())
         gains += f" against {kept.label}{same}"
-        fewer = len(other.names) < len(kept.names) and predicts_as_well(v)
-        if predicts_better(v) or fewer:
+        better = predicts_better(v)
+        if better or (len(other.names) < len(kept.names) and predicts_as_well(v)):
             kept.kept, kept.why = False, f"replaced by the chain started with {c.name}"
-            better = "predicts as well with fewer effects" if fewer and not predicts_better(v) else "predicts better"
-            kept, other.kept, other.why = other, True, f"{better}: {gains}"
+            said = "predicts better" if better else "predicts as well with fewer effects"
+            kept, other.kept, other.why = other, True, f"{said}: {gains}"
         else:
             other.why = f"not clearly better: {gains}"
     return kept.steps, tried
