@@ -233,7 +233,8 @@ def read_logs(paths: list[Path]) -> LogTable:
     for p, t in zip(paths[1:], tables[1:]):
         if set(t.columns) != first:
             lacks, adds = sorted(first - set(t.columns)), sorted(set(t.columns) - first)
-            differ = [f"it {verb} {', '.join(names[:4])}" for verb, names in (("lacks", lacks), ("adds", adds)) if names]
+            differ = [f"it {verb} {', '.join(names[:4])}"
+                      for verb, names in (("lacks", lacks), ("adds", adds)) if names]
             raise UserError(f"{p} has other columns than {paths[0]}: {'; '.join(differ)}; several logs are read one "
                             "after the other and must have the same columns")
     episodes, after = [], 0.0
