@@ -209,8 +209,9 @@ def test_a_chain_replaces_the_kept_one_where_it_predicts_better_at_more_horizons
     than worse, and by more than it loses (the product of the error ratios). The first two
     are fresh draws under attitude feedback whose true effects were in the chain set aside before
     this rule; the noise case is a chain that wins the one step alone. A chain of fewer effects
-    replaces the kept one where it predicts as well."""
-    from acn.models.diagnose.add import horizon_votes, predicts_as_well, predicts_better
+    replaces the kept one where it predicts as well, and ``add.revisit``'s refitted chain
+    replaces the greedy one where it predicts no horizon worse."""
+    from acn.models.diagnose.add import horizon_votes, predicts_as_well, predicts_better, predicts_no_worse
 
     def v(one, z, h5, h25):
         return {"one_step_removed": one, "z": z, "longest_horizon_removed": h25, "horizons_removed": {5: h5, 25: h25}}
@@ -235,6 +236,12 @@ def test_a_chain_replaces_the_kept_one_where_it_predicts_better_at_more_horizons
     assert not predicts_better(without_lag) and predicts_as_well(without_lag)
     assert not predicts_as_well(v(0.02, 2.5, 0.03, -0.06))   # 25 steps worse by more than the margin
     assert not predicts_as_well(v(-0.04, -3.0, 0.0, 0.01))   # no horizon worse by a margin, but worse overall
+    # add.revisit keeps a refitted chain only where it predicts no horizon worse: a fresh draw (floor friction and
+    # a payload 7.8 cm ahead) whose payload, fitted again beside the friction, turned implausible and gave way to
+    # motor strength; that chain against the payload's
+    strength_for_payload = v(-0.036, -7.3, -0.264, -0.927)
+    assert horizon_votes(strength_for_payload) == (0, 2) and not predicts_no_worse(strength_for_payload)
+    assert predicts_no_worse(v(-0.01, -1.0, -0.02, 0.01))    # within every margin: the simpler chain is kept
 
 
 def test_nominal_data_is_none(tmp_path):
