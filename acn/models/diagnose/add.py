@@ -11,7 +11,8 @@ readings leaves. An effect whose final fit lowers the one-step error but not the
 error at the longest horizon is not added (``rank.one_step_only``), nor one whose final fit
 (on more rows, at the granularity chosen) is no longer significant or turns implausible
 (``rank.implausible``): it is set aside with the reason, and the next candidate is tried.
-Then ``revisit`` judges each added effect again beside the others, and ``other_starts`` runs
+Then ``revisit`` judges each added effect again beside the others (a simpler effect takes a
+richer one's place where the chain then predicts no horizon worse), and ``other_starts`` runs
 the same greedy chain from the next-best first candidates, keeping one that predicts clearly
 better. Once the effects are chosen, ``refine_chain`` refines the fit of those that move the
 start state (encoder offsets) with central differences (``fitting`` module docstring), where

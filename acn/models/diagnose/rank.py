@@ -11,8 +11,9 @@ and without it. A candidate's evidence:
   rows do not count twice) or a quarter of the whole error (an effect such as a torque limit
   acts on few rows: its improvement is large but uneven; fitting noise never removes that much
   on held-out rows); where no plausible candidate is, the best plausible ones that remove at
-  least 2 % are checked at the longest horizon too, and one that removes a quarter of that
-  error is significant (``uneven``: a torque limit reached in 4 % of the steps);
+  least 2 % or improve by 3 standard errors are checked at the longest horizon too, and the one
+  that removes most of that error, if a quarter, is significant (``uneven``: a torque limit
+  reached in 4 % of the steps);
 - ``score``: the share of the whole held-out error it removes, minus a small price per fitted
   parameter (ties go to the simpler effect); it orders candidates as ``explained`` does, and
   still orders them when the error is all noise;
