@@ -45,7 +45,7 @@ from acn.models.diagnose.compare import Comparison, compare, floor_of, informati
 from acn.models.diagnose.pairing import action_row
 from acn.models.diagnose.problem import DiagnoseConfig, Problem, corrected, prepare
 from acn.models.diagnose.rate import physics_rate
-from acn.models.diagnose.rank import (STRUCTURED_SHARE, Candidate, doubt, explained_share, finer_look,
+from acn.models.diagnose.rank import (SIGNIFICANCE_Z, STRUCTURED_SHARE, Candidate, doubt, explained_share, finer_look,
                                       fits_noise_by_size, implausible, one_step_only, rank,
                                       ties_of)
 from acn.models.diagnose.where import breakdown
@@ -144,6 +144,9 @@ def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Cand
 
 def evidence(c: Candidate) -> str:
     """Why ``c``'s held-out improvement is significant, in words."""
+    if c.judgement.by_longest and c.judgement.z >= SIGNIFICANCE_Z:
+        return (f"it removes {c.longer_gain:.0%} of the longest-horizon open-loop error; at one step only "
+                f"{c.judgement.removed:.1%} ({c.judgement.z:.1f} standard errors): a small effect that adds up")
     if c.judgement.by_longest:
         return (f"it removes {c.longer_gain:.0%} of the longest-horizon open-loop error; at one step its held-out "
                 f"improvement is uneven, {c.judgement.z:.1f} standard errors: it acts on few steps")
