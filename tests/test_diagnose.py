@@ -1140,6 +1140,16 @@ def test_an_effect_that_acts_on_few_steps_is_significant_by_its_longest_horizon_
     from acn.models.diagnose.pipeline import evidence
     assert evidence(payload) == ("it removes 54% of the longest-horizon open-loop error; at one step only 1.8% "
                                  "(8.1 standard errors): a small effect that adds up")
+    # added so, the report says why under the effect
+    from acn.models.diagnose.add import Added
+    from acn.models.diagnose.report import _notes
+    errors = {1: np.full(4, 1.0), 25: np.full(4, 1.0)}
+    before = Comparison(Model("mujoco"), {}, errors, np.arange(10), residual + 1, np.zeros((10, 43)), 0)
+    after = replace(before, channel_error={1: errors[1], 25: np.full(4, np.sqrt(0.46))})
+    step = Added(payload.fit, replace(payload.judgement, significant=False, by_longest=False), before, after)
+    assert ("significant by its 25-step prediction: it removes 54% of that open-loop error, 1.8% of the one-step "
+            "error (8.1 standard errors, not significant at one step)") in _notes(step, 1.0)
+    assert not any("significant by" in t for t in _notes(replace(step, after=before), 1.0))
 
 
 def _one_row_late(rows: dict) -> dict:
