@@ -59,10 +59,10 @@ from pathlib import Path
 
 import numpy as np
 
-from acn.models.diagnose.add import Added, longer_gain
+from acn.models.diagnose.add import Added, longer_gain, significant
 from acn.models.diagnose.compare import Comparison, group_errors
 from acn.models.diagnose.pipeline import Diagnosis
-from acn.models.diagnose.rank import LARGE_IMPROVEMENT, Candidate, doubt, fits_noise, unidentified
+from acn.models.diagnose.rank import Candidate, doubt, fits_noise, unidentified
 from acn.models.diagnose.transfer import closer_by, table as closed_loop_table
 from acn.toolkit.effects import EFFECT_NAMES, get_effect
 
@@ -161,12 +161,11 @@ def _notes(a: Added, kd: float) -> list[str]:
 def _longer_text(a: Added) -> str:
     """Where the added effect is significant by its longest-horizon gain alone (``add.significant``,
     ``rank.uneven``), that gain and its one-step figures; "" otherwise."""
-    longer = longer_gain(a)
-    if a.judgement.significant or longer is None or longer < LARGE_IMPROVEMENT:
+    if a.judgement.significant or not significant(a):
         return ""
-    return (f"significant by its {a.before.check}-step prediction: it removes {longer:.0%} of that open-loop error, "
-            f"{a.judgement.removed:.1%} of the one-step error ({a.judgement.z:.1f} standard errors, not significant "
-            "at one step)")
+    return (f"significant by its {a.before.check}-step prediction: it removes {longer_gain(a):.0%} of that "
+            f"open-loop error, {a.judgement.removed:.1%} of the one-step error ({a.judgement.z:.1f} standard errors, "
+            "not significant at one step)")
 
 
 def _unidentified_text(fit) -> str:
