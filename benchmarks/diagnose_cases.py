@@ -61,6 +61,13 @@ With ``--pairs``, logs with TWO hidden effects instead (``--auto``), one line ea
 
 - ``pairs_both_named``: both hidden effects added, and nothing else;
 - ``pairs_within_15pct``: of the parameters of those, within 15 % of the truth.
+
+With ``--draws K0:K1``, fresh pairs drawn at random instead (``draw``; seeds ``--seed0`` + k, one
+per draw k): two different effects of ``DRAWN``, each at a value uniform in the catalogue's
+realistic range, on the sines or the pace controller (the pace wherever the floor's friction is
+drawn); the latency + lag pair is not drawn (a delay beside a lag is a known limit). The same
+line and totals as ``--pairs``. ``--keep DIR`` keeps every imported dataset there (``dK``), to
+re-diagnose with ``acn-diagnose``.
 """
 
 from __future__ import annotations
@@ -83,7 +90,7 @@ from acn.datasets.importer import ImportConfig, import_log  # noqa: E402
 from acn.datasets.measurements import load_measurements  # noqa: E402
 from acn.models.diagnose import DiagnoseConfig, diagnose  # noqa: E402
 from acn.toolkit.backends import IMU_ACC_KINDS  # noqa: E402
-from acn.toolkit.effects import Model  # noqa: E402
+from acn.toolkit.effects import CATALOGUE, Model  # noqa: E402
 from acn.toolkit.state import GROUPS  # noqa: E402
 
 OFFSETS = np.array([0.05, -0.08, 0.1, -0.04, 0.06, -0.12, 0.03, 0.09, -0.07, -0.1, 0.04, 0.08])
@@ -206,6 +213,79 @@ PAIRS = {
 }
 
 
+def _realistic(rng: np.random.Generator, effect: str) -> float:
+    low, high = CATALOGUE[effect].parameters[0].realistic
+    return float(rng.uniform(low, high))
+
+
+def _drawn_payload(rng: np.random.Generator) -> tuple[dict, float]:
+    """A payload of realistic mass, its centre up to 8 cm ahead or behind, 4 cm to a side and 0-8 cm
+    above the trunk's origin (a box on the back)."""
+    mass = _realistic(rng, "payload")
+    pos = [float(rng.uniform(-0.08, 0.08)), float(rng.uniform(-0.04, 0.04)), float(rng.uniform(0.0, 0.08))]
+    return {"spec_edit": welded_payload(mass, pos, inertia=1e-4)}, mass
+
+
+def _drawn_latency(rng: np.random.Generator) -> tuple[dict, float]:
+    steps = int(round(1000 * _realistic(rng, "actuator_latency")))  # whole physics steps of 1 ms
+    return {"latency_steps": steps}, steps / 1000
+
+
+def _drawn_joints(attr: str, effect: str):
+    def drawn(rng: np.random.Generator) -> tuple[dict, float]:
+        v = _realistic(rng, effect)
+        return {"spec_edit": _joints(attr, v)}, v
+    return drawn
+
+
+def _drawn_field(field: str, effect: str, wrap=lambda v: v):
+    def drawn(rng: np.random.Generator) -> tuple[dict, float]:
+        v = _realistic(rng, effect)
+        return {field: wrap(v)}, v
+    return drawn
+
+
+def _drawn_floor(rng: np.random.Generator) -> tuple[dict, float]:
+    v = _realistic(rng, "ground_friction")
+    return {"spec_edit": _floor(v), "controller": "pace"}, v
+
+
+# effect -> (its parameter, a function of a random generator giving (LogSpec overrides, true value))
+DRAWN = {
+    "joint_damping": ("value", _drawn_joints("damping", "joint_damping")),
+    "joint_friction": ("value", _drawn_joints("frictionloss", "joint_friction")),
+    "armature": ("value", _drawn_joints("armature", "armature")),
+    "actuator_latency": ("seconds", _drawn_latency),
+    "actuator_lag": ("timeconst", _drawn_field("command_lag", "actuator_lag")),
+    "motor_strength": ("scale", _drawn_field("strength", "motor_strength")),
+    "torque_limit": ("value", _drawn_field("torque_limit", "torque_limit")),
+    "pd_gains": ("kp_scale", _drawn_field("gains", "pd_gains", lambda v: (v, 1.0))),
+    "payload": ("mass", _drawn_payload),
+    "ground_friction": ("value", _drawn_floor),
+}
+
+
+def draw(seed: int) -> tuple[str, dict, list[tuple[str, str, float]]]:
+    """One fresh pair: (a name, its LogSpec overrides, [(effect, parameter, true value)] x 2)."""
+    rng = np.random.default_rng(seed)
+    while True:
+        pair = sorted(str(e) for e in rng.choice(list(DRAWN), size=2, replace=False))
+        if pair != ["actuator_lag", "actuator_latency"]:
+            break
+    over: dict = {"controller": str(rng.choice(["sines", "pace"]))}
+    edits, truth = [], []
+    for effect in pair:
+        key, drawn = DRAWN[effect]
+        o, true = drawn(rng)
+        if "spec_edit" in o:
+            edits.append(o.pop("spec_edit"))
+        over.update(o)
+        truth.append((effect, key, true))
+    if edits:
+        over["spec_edit"] = _both(*edits)
+    return "+".join(pair), over, truth
+
+
 def dropped(args) -> tuple[str, ...]:
     """Channels the logs leave out (``--no-mocap``, ``--no-contacts``)."""
     out = tuple(GROUPS["base_pos"] + GROUPS["base_linvel"]) if args.no_mocap else ()
@@ -236,36 +316,50 @@ def skipped(args, name: str, over: dict) -> bool:
     return False
 
 
+def diagnose_pair(args, name: str, stem: str, over: dict, truth: list, seed: int, root: Path, tally: dict) -> None:
+    """Write (``root/stem.csv``), import (``root/stem``) and diagnose (``--auto``) one log with two
+    hidden effects; print its line and count into ``tally`` ({"named": [right, of], "within": [right, of]})."""
+    write_log(root / f"{stem}.csv", log_spec(args, seed, over))
+    path, _ = import_log(root / f"{stem}.csv", root / stem, import_config(args))
+    t = time.perf_counter()
+    d = diagnose(load_measurements(path), Model.parse("mujoco"), DiagnoseConfig(), automatic=True)
+    fitted = {t.name: t.values for t in d.final.model.effects}
+    both = sorted(fitted) == sorted(e for e, _, _ in truth)
+    tally["named"][0] += both
+    tally["named"][1] += 1
+    cells = []
+    for effect, key, true in truth:
+        if effect in fitted:
+            value = float(np.mean(fitted[effect][key]))
+            tally["within"][0] += abs(value - true) <= 0.15 * abs(true)
+            tally["within"][1] += 1
+            cells.append(f"{effect}.{key}={value:.4g} (true {true:.4g})")
+        else:
+            cells.append(f"{effect} missed (true {key}={true:.4g})")
+    extra = [f"{n}({', '.join(f'{k}={float(np.mean(v)):.4g}' for k, v in fitted[n].items())})"
+             for n in fitted if n not in {e for e, _, _ in truth}]
+    aside = f" set_aside={sorted(d.set_aside)}" if d.set_aside else ""
+    print(f"{name:18s} verdict={d.verdict:11s} imu={d.accelerometer.kind:7s} both={'yes' if both else 'no':3s} "
+          f"{' '.join(cells)}"
+          f"{' also ' + ' '.join(extra) if extra else ''}{aside} {time.perf_counter() - t:.0f}s", flush=True)
+
+
 def pairs(args, root: Path) -> None:
-    named, within = [0, 0], [0, 0]
-    for i, (name, (over, truth)) in enumerate(PAIRS.items()):
+    tally = {"named": [0, 0], "within": [0, 0]}
+    if args.draws:
+        k0, k1 = (int(k) for k in args.draws.split(":"))
+        for k in range(k0, k1):
+            name, over, truth = draw(args.seed0 + k)
+            print(f"d{k} ({over['controller']}): {name}", flush=True)
+            diagnose_pair(args, f"d{k}", f"d{k}", over, truth, args.seed0 + k, root, tally)
+    for i, (name, (over, truth)) in enumerate(PAIRS.items() if not args.draws else ()):
         if args.cases and name not in args.cases.split(","):
             continue
         if skipped(args, name, over):
             continue
-        write_log(root / f"p{i}.csv", log_spec(args, 300 + i, over))
-        path, _ = import_log(root / f"p{i}.csv", root / f"p{i}", import_config(args))
-        t = time.perf_counter()
-        d = diagnose(load_measurements(path), Model.parse("mujoco"), DiagnoseConfig(), automatic=True)
-        fitted = {t.name: t.values for t in d.final.model.effects}
-        both = sorted(fitted) == sorted(e for e, _, _ in truth)
-        named[0] += both
-        named[1] += 1
-        cells = []
-        for effect, key, true in truth:
-            if effect in fitted:
-                value = float(np.mean(fitted[effect][key]))
-                within[0] += abs(value - true) <= 0.15 * abs(true)
-                within[1] += 1
-                cells.append(f"{effect}.{key}={value:.4g} (true {true})")
-        extra = [f"{n}({', '.join(f'{k}={float(np.mean(v)):.4g}' for k, v in fitted[n].items())})"
-                 for n in fitted if n not in {e for e, _, _ in truth}]
-        aside = f" set_aside={sorted(d.set_aside)}" if d.set_aside else ""
-        print(f"{name:18s} verdict={d.verdict:11s} imu={d.accelerometer.kind:7s} both={'yes' if both else 'no':3s} "
-              f"{' '.join(cells)}"
-              f"{' also ' + ' '.join(extra) if extra else ''}{aside} {time.perf_counter() - t:.0f}s", flush=True)
-    print(f"pairs_both_named={named[0]}/{named[1]}")
-    print(f"pairs_within_15pct={within[0]}/{within[1]}")
+        diagnose_pair(args, name, f"p{i}", over, truth, 300 + i, root, tally)
+    print(f"pairs_both_named={tally['named'][0]}/{tally['named'][1]}")
+    print(f"pairs_within_15pct={tally['within'][0]}/{tally['within'][1]}")
 
 
 def parser() -> argparse.ArgumentParser:
@@ -278,6 +372,10 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--cases", default=None, help="comma-separated names (default: every case of the set)")
     ap.add_argument("--other", action="store_true", help="the OTHER set: values and seeds the rules never saw")
     ap.add_argument("--pairs", action="store_true", help="logs with two hidden effects instead (PAIRS)")
+    ap.add_argument("--draws", default=None, metavar="K0:K1",
+                    help="fresh random pairs k = K0..K1-1 instead (seeds --seed0 + k; see draw)")
+    ap.add_argument("--seed0", type=int, default=5500, help="--draws: the seed of draw 0")
+    ap.add_argument("--keep", type=Path, default=None, help="keep the logs and datasets in this folder")
     ap.add_argument("--no-mocap", action="store_true", help="logs without the trunk's position and linear velocity")
     ap.add_argument("--no-contacts", action="store_true", help="logs without foot contact flags")
     ap.add_argument("--feedback", type=float, default=0.0,
@@ -316,12 +414,13 @@ def main() -> None:
         ap.error("--stance-torque sends its own gains and torques: not with --feedforward or --stance-gains")
     if args.stance_gains is not None and len(args.stance_gains) != 2:
         ap.error("--stance-gains takes two multiples, KP,KD")
-    root = Path(tempfile.mkdtemp())
+    root = args.keep or Path(tempfile.mkdtemp())
+    root.mkdir(parents=True, exist_ok=True)
     cases, seed = (PAIRS, 300) if args.pairs else (OTHER, 700) if args.other else (CASES, 100)
     unknown = [n for n in (args.cases.split(",") if args.cases else []) if n not in cases]
     if unknown:
         ap.error(f"no case {unknown[0]!r}; the cases: {', '.join(cases)}")
-    if args.pairs:
+    if args.pairs or args.draws:
         return pairs(args, root)
     tally = {"ranked_first": [0, 0], "within_15pct": [0, 0], "removed_80pct": [0, 0], "verdict_right": [0, 0]}
     for name in args.cases.split(",") if args.cases else cases:
