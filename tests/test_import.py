@@ -316,7 +316,7 @@ def test_import_errors_are_one_line(tmp_path, log_rows, acn):
     (tmp_path / "threshold.json").write_text('{"FR_hip_pos": {"column": "FR_hip_pos", "threshold": 0.1}}')
     for args, message in [
         ([str(tmp_path / "nope.csv")], "does not exist"),
-        ([str(tmp_path / "log.txt")], ".csv, .parquet or .jsonl"),
+        ([str(tmp_path / "log.txt")], ".csv, .parquet, .jsonl (one JSON object per line) or HDF5"),
         ([str(tmp_path / "log.csv"), "--map", str(tmp_path / "bad.json")], "not a channel"),
         ([str(tmp_path / "log.csv"), "--map", str(tmp_path / "threshold.json")], "not a contact channel"),
         ([str(tmp_path / "log.csv"), "--control-hz", "0"], ">= 1"),
@@ -535,3 +535,57 @@ def test_nested_json_lines_are_flattened_and_get_a_draft_map(tmp_path, log_rows,
     assert m.missing == []
     acc = m.state[:49, [STATE_NAMES.index(f"imu_acc_{axis}") for axis in "xyz"]]
     np.testing.assert_allclose(acc, np.column_stack([log_rows[f"imu_acc_{a}"][:49] for a in "xyz"]), atol=1e-4)
+
+
+def test_hdf5_logs_in_one_table_or_one_group_per_episode_import(tmp_path, log_rows, acn):
+    """HDF5 as loggers write it: one table (2-D joint angles, actions in a group named as the
+    schema, a gain and a camera image left out), or numbered episode groups read in their numbers'
+    order (demo_2 before demo_10, whatever the file's order); both to the logged values. Episode
+    groups with other datasets, a file pandas wrote and a file that is not HDF5 are refused in one
+    line."""
+    import h5py
+
+    q = np.column_stack([log_rows[f"{j}_pos"] for j in JOINT_NAMES])
+    flat = {k: v for k, v in log_rows.items() if not k.endswith("_pos") or k in GROUPS["base_pos"]}
+    with h5py.File(tmp_path / "table.h5", "w") as f:
+        for k, v in flat.items():
+            f.create_dataset(k.replace("action.", "action/"), data=v)
+        f["q"] = q
+        f["kp"] = np.full(12, 60.0)  # not a column: another number of rows
+        f["camera"] = np.zeros((len(q), 4, 4), np.uint8)  # an image: not read
+    r = acn("import", str(tmp_path / "table.h5"), "--out", str(tmp_path / "no_map"), *CONTROL)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert '"FR_hip_pos": "q[0]"' in r.stderr, r.stderr  # the draft map names the array's elements
+    (tmp_path / "map.json").write_text(json.dumps({f"{j}_pos": f"q[{k}]" for k, j in enumerate(JOINT_NAMES)}))
+    r = acn("import", str(tmp_path / "table.h5"), "--out", str(tmp_path / "table"), *CONTROL,
+            "--map", str(tmp_path / "map.json"))
+    assert r.returncode == 0 and "98 transitions in 2 episode(s)" in r.stdout, r.stdout + r.stderr
+    want = np.delete(q, [49, 99], axis=0)  # each episode's last row is only a next state
+    np.testing.assert_allclose(load_measurements(tmp_path / "table").state[:, SLICES["joint_pos"]], want, atol=1e-5)
+
+    with h5py.File(tmp_path / "episodes.hdf5", "w") as f:
+        for e, name in ((1, "demo_10"), (0, "demo_2")):
+            rows = log_rows["episode_index"] == e
+            for k, v in log_rows.items():
+                if k != "episode_index":
+                    f.create_dataset(f"data/{name}/{k.replace('action.', 'action/')}", data=v[rows])
+        f["data/total"] = np.array([100])
+    r = acn("import", str(tmp_path / "episodes.hdf5"), "--out", str(tmp_path / "episodes"), *CONTROL)
+    assert r.returncode == 0 and "98 transitions in 2 episode(s)" in r.stdout, r.stdout + r.stderr
+    m = load_measurements(tmp_path / "episodes")
+    np.testing.assert_allclose(m.state[:, SLICES["joint_pos"]], want, atol=1e-5)
+
+    with h5py.File(tmp_path / "episodes.hdf5", "a") as f:
+        del f["data/demo_10/timestamp"]
+    r = acn("import", str(tmp_path / "episodes.hdf5"), "--out", str(tmp_path / "no"), *CONTROL)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "episode group /data/demo_10 has other datasets than /data/demo_2: it lacks timestamp" in r.stderr, r.stderr
+    with h5py.File(tmp_path / "pandas.h5", "w") as f:  # HDFStore's layout: a group per frame, marked
+        f.create_group("log").attrs["pandas_type"] = "frame"
+        f["log/block0_values"] = np.zeros((3, 2))
+    r = acn("import", str(tmp_path / "pandas.h5"), "--out", str(tmp_path / "no"), *CONTROL)
+    assert r.returncode == 2 and "written by pandas" in r.stderr and "to_parquet" in r.stderr, r.stderr
+    (tmp_path / "text.h5").write_text("timestamp,FR_hip_pos\n0,0\n")
+    r = acn("import", str(tmp_path / "text.h5"), "--out", str(tmp_path / "no"), *CONTROL)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "cannot read" in r.stderr, r.stderr
+    assert not (tmp_path / "no").exists()

@@ -17,6 +17,8 @@ from acn.datasets.naming import CHANNELS, arrays_read, channel_of, contact_thres
     ("q_des_FL_calf", "action.FL_calf"),
     ("FR_thigh_cmd", "action.FR_thigh"),
     ("dq_des.RR_calf", "action_vel.RR_calf"),
+    ("actions_RL_calf", "action.RL_calf"),      # a plural: an HDF5 log's /actions (T, 12), robomimic's name
+    ("joint_targets.FL_hip", "action.FL_hip"),
     ("kp_RL_thigh", "action_kp.RL_thigh"),
     ("motorTorqueFrontRightHip", "effort.FR_hip"),  # camel case
     ("rearLeftCalfQ", "RL_calf_pos"),

@@ -30,7 +30,8 @@ _LEGS = {  # the schema's leg -> word sets any one of which names it
 }
 _JOINTS = {"hip": {"hip", "abad", "abduction", "haa"}, "thigh": {"thigh", "hfe", "upper"},
            "calf": {"calf", "knee", "kfe", "shank", "lower"}}
-_COMMAND = {"action", "cmd", "command", "target", "des", "desired", "ref", "setpoint", "ff", "feedforward"}
+_COMMAND = {"action", "actions", "cmd", "cmds", "command", "commands", "target", "targets", "des", "desired", "ref",
+            "setpoint", "setpoints", "ff", "feedforward"}
 _QUANTITY = {"pos": {"pos", "position", "q", "angle", "jpos", "qpos"},
              "vel": {"vel", "velocity", "dq", "qd", "qdot", "speed", "jvel", "qvel"},
              "torque": {"effort", "tau", "torque", "trq"},
