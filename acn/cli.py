@@ -533,9 +533,9 @@ def import_parser() -> argparse.ArgumentParser:
     from acn.toolkit.backends import ACTION_MODES, IMU_ACC_KINDS
     from acn.toolkit.state import FOOT_NAMES
 
-    p = _Parser(prog="acn-import", description="Turn a robot log (CSV, Parquet, JSON lines or HDF5, one row per control "
+    p = _Parser(prog="acn-import", description="Turn a robot log (CSV, Parquet, JSON lines, HDF5 or .npz, one row per control "
                 "step) into a measurement dataset (LeRobot v3.0, the schema of acn-collect) that acn-diagnose reads.")
-    p.add_argument("log", type=Path, nargs="+", help="the log file (.csv, .parquet, .jsonl or .h5); several (one per run, "
+    p.add_argument("log", type=Path, nargs="+", help="the log file (.csv, .parquet, .jsonl, .h5 or .npz); several (one per run, "
                    "the same columns): read one after the other, each file's episodes apart")
     p.add_argument("--out", required=True, type=Path, help="dataset directory to create")
     p.add_argument("--control-hz", required=True, type=_positive_int, help="control rate the log was recorded at")

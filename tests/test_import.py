@@ -316,7 +316,7 @@ def test_import_errors_are_one_line(tmp_path, log_rows, acn):
     (tmp_path / "threshold.json").write_text('{"FR_hip_pos": {"column": "FR_hip_pos", "threshold": 0.1}}')
     for args, message in [
         ([str(tmp_path / "nope.csv")], "does not exist"),
-        ([str(tmp_path / "log.txt")], ".csv, .parquet, .jsonl (one JSON object per line) or HDF5"),
+        ([str(tmp_path / "log.txt")], ".csv, .parquet, .jsonl (one JSON object per line), HDF5"),
         ([str(tmp_path / "log.csv"), "--map", str(tmp_path / "bad.json")], "not a channel"),
         ([str(tmp_path / "log.csv"), "--map", str(tmp_path / "threshold.json")], "not a contact channel"),
         ([str(tmp_path / "log.csv"), "--control-hz", "0"], ">= 1"),
@@ -537,12 +537,12 @@ def test_nested_json_lines_are_flattened_and_get_a_draft_map(tmp_path, log_rows,
     np.testing.assert_allclose(acc, np.column_stack([log_rows[f"imu_acc_{a}"][:49] for a in "xyz"]), atol=1e-4)
 
 
-def test_hdf5_logs_in_one_table_or_one_group_per_episode_import(tmp_path, log_rows, acn):
+def test_hdf5_and_npz_logs_import(tmp_path, log_rows, acn):
     """HDF5 as loggers write it: one table (2-D joint angles, actions in a group named as the
     schema, a gain and a camera image left out), or numbered episode groups read in their numbers'
-    order (demo_2 before demo_10, whatever the file's order); both to the logged values. Episode
-    groups with other datasets, a file pandas wrote and a file that is not HDF5 are refused in one
-    line."""
+    order (demo_2 before demo_10, whatever the file's order); a NumPy archive as one table; all to
+    the logged values. Episode groups with other datasets, a file pandas wrote, an archive of
+    object arrays (never unpickled) and files that are neither are refused in one line."""
     import h5py
 
     q = np.column_stack([log_rows[f"{j}_pos"] for j in JOINT_NAMES])
@@ -585,6 +585,19 @@ def test_hdf5_logs_in_one_table_or_one_group_per_episode_import(tmp_path, log_ro
         f["log/block0_values"] = np.zeros((3, 2))
     r = acn("import", str(tmp_path / "pandas.h5"), "--out", str(tmp_path / "no"), *CONTROL)
     assert r.returncode == 2 and "written by pandas" in r.stderr and "to_parquet" in r.stderr, r.stderr
+    np.savez(tmp_path / "arrays.npz", q=q, **{k.replace(".", "_"): v for k, v in flat.items()})  # np.savez's names
+    npz_map = {f"{j}_pos": f"q[{k}]" for k, j in enumerate(JOINT_NAMES)} | {
+        f"action.{j}": f"action_{j}" for j in JOINT_NAMES}
+    (tmp_path / "npz_map.json").write_text(json.dumps(npz_map))
+    r = acn("import", str(tmp_path / "arrays.npz"), "--out", str(tmp_path / "npz"), *CONTROL,
+            "--map", str(tmp_path / "npz_map.json"))
+    assert r.returncode == 0 and "98 transitions in 2 episode(s)" in r.stdout, r.stdout + r.stderr
+    np.testing.assert_allclose(load_measurements(tmp_path / "npz").state[:, SLICES["joint_pos"]], want, atol=1e-5)
+    np.savez(tmp_path / "objects.npz", q=q, names=np.array([{"a": 1}] * len(q), dtype=object))
+    (tmp_path / "text.npz").write_text("timestamp\n0\n")
+    for name, message in (("objects.npz", "never done"), ("text.npz", "not a NumPy .npz archive")):
+        r = acn("import", str(tmp_path / name), "--out", str(tmp_path / "no"), *CONTROL)
+        assert r.returncode == 2 and message in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
     (tmp_path / "text.h5").write_text("timestamp,FR_hip_pos\n0,0\n")
     r = acn("import", str(tmp_path / "text.h5"), "--out", str(tmp_path / "no"), *CONTROL)
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "cannot read" in r.stderr, r.stderr

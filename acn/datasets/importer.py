@@ -79,7 +79,7 @@ MAP_ENTRY_KEYS = ("column", "scale", "offset", "threshold")
 _DECIMAL_COMMA = re.compile(r"^[-+]?\d+,\d+([eE][-+]?\d+)?$")
 _DECIMAL_POINT = re.compile(r"^[-+]?\d*\.\d+([eE][-+]?\d+)?$")
 MOSTLY_NUMBERS = 0.9  # a text column with this share of numbers is a column of numbers with some text (read_table)
-HDF5 = (".h5", ".hdf5", ".hdf")  # read by acn.datasets.hdf5 (its layouts)
+HDF5 = (".h5", ".hdf5", ".hdf")  # read by acn.datasets.arrays (its layouts), as NumPy's .npz
 COMPRESSED = (".gz", ".bz2", ".zst")  # a log.csv.gz is read as its CSV (pyarrow decompresses by extension)
 MALFORMED_MAX = 0.1  # a CSV with this share of rows of the wrong number of fields or more is refused (read_table)
 JITTER_MAX = 0.25  # a time-step spread up to this share of the period is taken as jitter (ImportReport.tolerance_hint)
@@ -158,8 +158,8 @@ class LogTable:
 
 
 def read_table(path: Path) -> LogTable:
-    """Columns of a CSV, Parquet, JSON-lines or HDF5 file (CSV and JSON lines also compressed,
-    ``COMPRESSED``; HDF5's layouts: ``acn.datasets.hdf5``) as float arrays (non-numeric columns are skipped;
+    """Columns of a CSV, Parquet, JSON-lines, HDF5 or NumPy .npz file (CSV and JSON lines also
+    compressed, ``COMPRESSED``; HDF5's layouts and .npz: ``acn.datasets.arrays``) as float arrays (non-numeric columns are skipped;
     date-time columns become seconds since the epoch; nested records are flattened, their columns
     named "outer.inner"). A CSV's separator is read from its header: comma,
     semicolon or tab; ``#`` comment lines before the header are skipped; column names are stripped
@@ -187,12 +187,17 @@ def read_table(path: Path) -> LogTable:
 
             table = pajson.read_json(path)
         elif suffix in HDF5 and not compressed:
-            from acn.datasets.hdf5 import read_hdf5
+            from acn.datasets.arrays import read_hdf5
 
             table = pa.table(read_hdf5(path))
+        elif suffix == ".npz" and not compressed:
+            from acn.datasets.arrays import read_npz
+
+            table = pa.table(read_npz(path))
         else:
-            raise UserError(f"{path}: a log must be a .csv, .parquet, .jsonl (one JSON object per line) or HDF5 "
-                            f"({', '.join(HDF5)}) file, .csv and .jsonl also compressed ({', '.join(COMPRESSED)})")
+            raise UserError(f"{path}: a log must be a .csv, .parquet, .jsonl (one JSON object per line), HDF5 "
+                            f"({', '.join(HDF5)}) or NumPy .npz file, .csv and .jsonl also compressed "
+                            f"({', '.join(COMPRESSED)})")
         while any(pa.types.is_struct(c.type) for c in table.columns):  # {"imu": {"acc_x": ...}} -> imu.acc_x
             table = table.flatten()
     except (pa.ArrowInvalid, OSError) as e:

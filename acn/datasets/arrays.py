@@ -1,4 +1,8 @@
-"""HDF5 robot logs as one table of columns (``read_hdf5``), for ``acn-import``.
+"""Robot logs stored as named arrays, HDF5 (``read_hdf5``) and NumPy archives (``read_npz``), as
+one table of columns for ``acn-import``.
+
+A NumPy archive (``np.savez``) is one table: each array one row per control step, its name the
+column's (``q`` (T, 12) gives ``q[0]`` ... ``q[11]``); object arrays are refused, never unpickled.
 
 Loggers write HDF5 in two common layouts; both are read:
 
@@ -19,6 +23,7 @@ that have more than two dimensions (camera images) or another number of rows tha
 from __future__ import annotations
 
 import re
+import zipfile
 from collections import Counter
 from pathlib import Path
 
@@ -47,6 +52,48 @@ def read_hdf5(path: Path) -> dict[str, np.ndarray]:
         return table
 
 
+def read_npz(path: Path) -> dict[str, np.ndarray]:
+    """A NumPy archive's arrays as columns (module docstring): those with the number of rows most
+    of them share; ``UserError`` for object arrays (reading them would unpickle) or no table."""
+    if not zipfile.is_zipfile(path):
+        raise UserError(f"cannot read {path}: not a NumPy .npz archive (np.savez writes a zip of .npy arrays)")
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            columns: dict[str, np.ndarray] = {}
+            for name in archive.files:
+                _add(columns, name, archive[name])
+    except ValueError as e:
+        if "pickle" in str(e):
+            raise UserError(f"{path} holds object arrays, which are read only by unpickling (never done): "
+                            "save numbers (np.savez with float or int arrays)") from None
+        raise UserError(f"cannot read {path}: {str(e).splitlines()[0]}") from None
+    table = _rows(columns)
+    if table is None:
+        raise UserError(f"{path} holds no array of numbers with one row per step (1-D or 2-D)")
+    return table
+
+
+def _add(out: dict[str, np.ndarray], name: str, a: np.ndarray) -> None:
+    """``a`` as columns of ``out`` if it is numbers in one or two dimensions (module docstring)."""
+    if a.dtype.kind not in "biuf" or a.ndim not in (1, 2) or a.shape[0] == 0:
+        return
+    a = a.astype(np.float64)
+    if a.ndim == 1:
+        out[name] = a
+    else:
+        out.update({f"{name}[{i}]": a[:, i] for i in range(a.shape[1])})
+
+
+def _rows(columns: dict[str, np.ndarray]) -> dict[str, np.ndarray] | None:
+    """The columns that have the table's number of rows: the one most of them share (a (12,) gain
+    beside (T,) arrays is left out). None where no column has 2 rows."""
+    columns = {k: v for k, v in columns.items() if len(v) >= 2}
+    if not columns:
+        return None
+    rows = Counter(len(v) for v in columns.values()).most_common(1)[0][0]
+    return {k: v for k, v in columns.items() if len(v) == rows}
+
+
 def _pandas(f) -> bool:
     return any("pandas_type" in obj.attrs for obj in f.values())
 
@@ -57,15 +104,6 @@ def _columns(group) -> dict[str, np.ndarray]:
 
     out: dict[str, np.ndarray] = {}
 
-    def add(name: str, a: np.ndarray) -> None:
-        if a.dtype.kind not in "biuf" or a.ndim not in (1, 2) or a.shape[0] == 0:
-            return
-        a = a.astype(np.float64)
-        if a.ndim == 1:
-            out[name] = a
-        else:
-            out.update({f"{name}[{i}]": a[:, i] for i in range(a.shape[1])})
-
     def visit(name: str, obj) -> None:
         if not isinstance(obj, h5py.Dataset) or obj.ndim == 0:
             return
@@ -73,22 +111,17 @@ def _columns(group) -> dict[str, np.ndarray]:
         if obj.dtype.names:  # a compound dataset: a record per row
             data = obj[()]
             for field in obj.dtype.names:
-                add(f"{column}.{field}", np.asarray(data[field]))
+                _add(out, f"{column}.{field}", np.asarray(data[field]))
         elif obj.ndim <= 2:  # images (3-D and more) are not read at all
-            add(column, obj[()])
+            _add(out, column, obj[()])
 
     group.visititems(visit)
     return out
 
 
 def _table(group) -> dict[str, np.ndarray] | None:
-    """The columns below ``group`` that have the table's number of rows: the one most of them
-    share (a (12,) gain beside (T,) datasets is left out). None where no column has 2 rows."""
-    columns = {k: v for k, v in _columns(group).items() if len(v) >= 2}
-    if not columns:
-        return None
-    rows = Counter(len(v) for v in columns.values()).most_common(1)[0][0]
-    return {k: v for k, v in columns.items() if len(v) == rows}
+    """The columns below ``group`` that have the table's number of rows (``_rows``)."""
+    return _rows(_columns(group))
 
 
 def _episodes(f) -> list[tuple[str, dict[str, np.ndarray]]] | None:
