@@ -638,17 +638,6 @@ def test_noisy_joint_readings_do_not_bias_the_fitted_friction(noisy_logs):
     # entirely (measured 0.347 here; 0.30 on benchmarks/diagnose_cases.py's friction log).
     assert abs(iv_value - 0.3) <= 0.2 * 0.3 and iv_value < ls_value - 0.01, (ls_value, iv_value)
 
-    # An armature (``Effect.instruments`` False: instruments moved it away from the truth on four
-    # logs of five) is held at least squares, alone or refitted beside the friction, which still moves.
-    arm = fit_effect(problem, Model.parse("mujoco"), get_effect("armature"), "shared", rows, max_iter=3)
-    assert instrumental_refit(problem, Model.parse("mujoco"), arm, rows) is arm
-    both = fit_effect(problem, arm.model, get_effect("joint_friction"), "shared", rows, refit=("armature",))
-    both_iv = instrumental_refit(problem, arm.model, both, rows, refit=("armature",))
-    held = [{t.name: t.values for t in f.model.effects}["armature"]["value"] for f in (both, both_iv)]
-    np.testing.assert_array_equal(held[0], held[1])
-    assert float(np.mean(both_iv.values["value"])) < float(np.mean(both.values["value"])) - 0.01
-    assert len(both_iv.stderr) == len(both_iv.x) == 2 and both_iv.stderr[1] == both.stderr[1]
-
 
 def test_noisy_start_states_do_not_make_a_payload_light(tmp_path):
     """Least squares from noisy start states fits a payload light on a pacing robot (errors in

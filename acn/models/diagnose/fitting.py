@@ -417,21 +417,14 @@ def instrumental_refit(problem: Problem, base: Model, fit: EffectFit, rows: np.n
     biased, except through what is nonlinear in the noise (friction's sign of a noisy speed:
     0.375 -> 0.347 for 0.3 on one log, 0.38 -> 0.30 on another). Only for effects with joint
     parameters: for the trunk's payload the instruments fail (contacts switch between t - 2
-    and t + 2; measured 1.96 -> 1.53 kg for 2). Parameters of effects with
-    ``Effect.instruments`` False (the armature) are held at their least-squares values: there
-    the instruments moved the fit away from the truth (stop 54: on four logs of five, 0.0197 ->
-    0.0252 for 0.020, 0.0291 -> 0.0328 for 0.0284, 0.0130 -> 0.0175 for 0.010, 0.0088 -> 0.0151
-    for 0.0071; 0.0137 -> 0.0128 on the fifth), predicting held-out rows 1.6-3 % worse.
+    and t + 2; measured 1.96 -> 1.53 kg for 2).
     """
     if not any(p.per_joint for p in fit.effect.parameters):
-        return fit
-    free = _together(problem, base, fit.effect, fit.granularity, refit)
-    solved = np.concatenate([np.full(len(p.names), p.effect.instruments) for p in free.parts])
-    if not solved.any():
         return fit
     step = IV_LAG * problem.unit  # control steps: the instruments' windows share no measured state with row t's
     rows = rows[problem.data.with_neighbours(rows, step) & problem.data.with_neighbours(rows, step + problem.unit - 1)]
     lag = np.concatenate([rows - step, rows + step])
+    free = _together(problem, base, fit.effect, fit.granularity, refit)
     if len(rows) < 10 * len(fit.x):
         return fit
     lo, hi = free.bounds()
@@ -441,7 +434,7 @@ def instrumental_refit(problem: Problem, base: Model, fit: EffectFit, rows: np.n
     half = len(rows) * len(problem.channels)
     r = objective(z.reshape(-1, 1))[:, 0]
     r0 = r[:half].copy()
-    jac = _jacobian(objective, z, r, lo / scale, hi / scale, central)[:, solved]  # the others stay as fitted
+    jac = _jacobian(objective, z, r, lo / scale, hi / scale, central)
     j_now, instrument = jac[:half], 0.5 * (jac[half:2 * half] + jac[2 * half:])  # J at t +- IV_LAG, averaged
     delta = 3.0 * 1.4826 * float(np.median(np.abs(r[:half]))) or 1e-9
     w = 1.0 / np.sqrt(1.0 + (r[:half] / delta) ** 2)  # the least-squares fit's robust weights, kept fixed
@@ -451,8 +444,7 @@ def instrumental_refit(problem: Problem, base: Model, fit: EffectFit, rows: np.n
     for i in range(iterations):  # chord steps: the slope stays the one at the least-squares fit
         if i:
             r = objective(z.reshape(-1, 1))[:, 0]
-        step = np.zeros_like(z)
-        step[solved] = -np.linalg.solve(a, instrument.T @ (w * r[:half]))
+        step = -np.linalg.solve(a, instrument.T @ (w * r[:half]))
         z_new = z + np.clip(step, -0.5, 0.5)  # at most half a typical magnitude per step
         if np.any(z_new < lo / scale) or np.any(z_new > hi / scale):
             return fit
@@ -461,14 +453,13 @@ def instrumental_refit(problem: Problem, base: Model, fit: EffectFit, rows: np.n
     r = objective(z.reshape(-1, 1))[:, 0][:half].reshape(len(rows), -1)
     if _costs_too_much(r0, r.ravel()):
         return fit  # removing a noise bias costs a few per cent of fit; more is an equation gone astray
-    g = (instrument.reshape(len(rows), -1, int(solved.sum())) * (w.reshape(len(rows), -1) * r)[:, :, None]).sum(1)
-    blocks = g[: len(g) // 10 * 10].reshape(-1, 10, int(solved.sum())).sum(1)
+    g = (instrument.reshape(len(rows), -1, len(z)) * (w.reshape(len(rows), -1) * r)[:, :, None]).sum(1)
+    blocks = g[: len(g) // 10 * 10].reshape(-1, 10, len(z)).sum(1)
     a_inv = np.linalg.inv(a)
     cov = a_inv @ (blocks.T @ blocks) @ a_inv.T * (len(g) / max(1, len(blocks) * 10))
     x = z * scale
     values = free.split(x)[0]
-    stderr = fit.stderr.copy()  # least squares' where held, the instrumental estimate's own elsewhere
-    stderr[solved] = np.sqrt(np.clip(np.diag(cov), 0.0, None)) * scale[solved]
+    stderr = np.sqrt(np.clip(np.diag(cov), 0.0, None)) * scale  # the instrumental estimate's own
     return EffectFit(fit.effect, fit.granularity, values, fit.names, x, stderr, free.model(base, x),
                      cost=fit.cost, evaluations=fit.evaluations + objective.evaluations, nominal=fit.nominal,
                      contradicted=_contradiction(problem, fit.effect, values))

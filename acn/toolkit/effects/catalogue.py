@@ -145,7 +145,7 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
     Effect("armature", "reflected rotor inertia added to each joint",
            (Parameter("value", "kg m^2", 0.0, 0.0, 0.1, per_joint=True, realistic=(0.005, 0.03)),),
            _setter("armature"), mujoco="joint.armature",
-           pybullet="a rotor disc added to the child link's inertia in the loaded URDF", instruments=False),
+           pybullet="a rotor disc added to the child link's inertia in the loaded URDF"),
     Effect("actuator_latency", "commands reach the motors late (transport and driver delay)",
            (Parameter("seconds", "s", 0.0, 0.0, 0.06, realistic=(0.002, 0.025)),),
            _latency, mujoco="per-physics-step control sequence (rollout control), the law of acn.toolkit.actuation",

@@ -60,9 +60,6 @@ class Effect:
     # feet): its chosen fit is refined with central differences (acn.models.diagnose.add.refine_chain)
     check: Callable[[np.ndarray, Values], str] | None = None  # measured states (N, 43) and fitted values ->
     # why the data contradict them without any simulation ("" where they agree; e.g. by kinematics)
-    instruments: bool = True  # its least-squares fit is corrected for start-state noise with instruments
-    # (acn.models.diagnose.fitting.instrumental_refit); False where they were measured to move it away from
-    # the truth (armature), which is then held at least squares
     fit_over_steps: bool = False  # its final fit is refined on predictions several steps ahead, where start-state
     # noise biases a one-step fit and no instrument corrects it (acn.models.diagnose.fitting.multistep_refit)
     reproduces: tuple[str, ...] = ()  # effects it equals at some values of its parameters while the joint PD is
