@@ -289,7 +289,9 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
     of the one-step error or ``AUTO_MIN_LONGER`` of the longest-horizon open-loop error.
 
     A candidate whose final fit is not added (``final_doubt``, or ``too_little`` on it) is set
-    aside and the next one is tried by the same rules. Returns the added effects and those set
+    aside and the next one is tried by the same rules. A significant candidate too little to add
+    is passed over for the next significant one, which a long prediction may have shown
+    (``rank.uneven``; before stop 54 greedy stopped there). Returns the added effects and those set
     aside (name -> why).
 
     An effect already added comes back as a candidate where the ranking beside the effects added
@@ -307,8 +309,11 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
         open_ = [c for c in ranking if c.name not in names(added) or c.name not in kept_coarse  # refinements too
                  and _finer(c.fit.granularity, _held(current.model, c.name))]
         open_ = [c for c in open_ if c.name not in noise_fits | set(set_aside)]
-        best = next((c for c in open_ if c.judgement.significant and not doubt(c)), None)
-        if best is None or too_little(best.judgement, best.longer_gain, floor_mse):
+        candidates = [c for c in open_ if c.judgement.significant and not doubt(c)]
+        # a candidate too little to add does not hide one behind it that a long prediction shows
+        # (rank.uneven, rank.short_lived)
+        best = next((c for c in candidates if not too_little(c.judgement, c.longer_gain, floor_mse)), None)
+        if best is None:
             break
         if progress:
             progress(f"adding {best.name}", None)
