@@ -345,21 +345,30 @@ def diagnose_pair(args, name: str, stem: str, over: dict, truth: list, seed: int
 
 
 def pairs(args, root: Path) -> None:
+    """The ``PAIRS`` cases, or the ``--draws``, one line each, then the totals."""
     tally = {"named": [0, 0], "within": [0, 0]}
     if args.draws:
-        k0, k1 = (int(k) for k in args.draws.split(":"))
-        for k in range(k0, k1):
+        for k in range(*args.draws):
             name, over, truth = draw(args.seed0 + k)
             print(f"d{k} ({over['controller']}): {name}", flush=True)
             diagnose_pair(args, f"d{k}", f"d{k}", over, truth, args.seed0 + k, root, tally)
-    for i, (name, (over, truth)) in enumerate(PAIRS.items() if not args.draws else ()):
-        if args.cases and name not in args.cases.split(","):
-            continue
-        if skipped(args, name, over):
-            continue
-        diagnose_pair(args, name, f"p{i}", over, truth, 300 + i, root, tally)
+    else:
+        for i, (name, (over, truth)) in enumerate(PAIRS.items()):
+            if args.cases and name not in args.cases.split(","):
+                continue
+            if skipped(args, name, over):
+                continue
+            diagnose_pair(args, name, f"p{i}", over, truth, 300 + i, root, tally)
     print(f"pairs_both_named={tally['named'][0]}/{tally['named'][1]}")
     print(f"pairs_within_15pct={tally['within'][0]}/{tally['within'][1]}")
+
+
+def _draws(text: str) -> tuple[int, int]:
+    try:
+        k0, k1 = (int(k) for k in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"K0:K1, two whole numbers, got {text!r}") from None
+    return k0, k1
 
 
 def parser() -> argparse.ArgumentParser:
@@ -372,7 +381,7 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--cases", default=None, help="comma-separated names (default: every case of the set)")
     ap.add_argument("--other", action="store_true", help="the OTHER set: values and seeds the rules never saw")
     ap.add_argument("--pairs", action="store_true", help="logs with two hidden effects instead (PAIRS)")
-    ap.add_argument("--draws", default=None, metavar="K0:K1",
+    ap.add_argument("--draws", default=None, metavar="K0:K1", type=_draws,
                     help="fresh random pairs k = K0..K1-1 instead (seeds --seed0 + k; see draw)")
     ap.add_argument("--seed0", type=int, default=5500, help="--draws: the seed of draw 0")
     ap.add_argument("--keep", type=Path, default=None, help="keep the logs and datasets in this folder")
