@@ -79,7 +79,7 @@ MAP_ENTRY_KEYS = ("column", "scale", "offset", "threshold")
 _DECIMAL_COMMA = re.compile(r"^[-+]?\d+,\d+([eE][-+]?\d+)?$")
 _DECIMAL_POINT = re.compile(r"^[-+]?\d*\.\d+([eE][-+]?\d+)?$")
 MOSTLY_NUMBERS = 0.9  # a text column with this share of numbers is a column of numbers with some text (read_table)
-HDF5 = (".h5", ".hdf5", ".hdf")  # read by acn.datasets.arrays (its layouts), as NumPy's .npz
+HDF5 = (".h5", ".hdf5", ".hdf")  # HDF5 logs, read by acn.datasets.arrays (as .npz archives are)
 COMPRESSED = (".gz", ".bz2", ".zst")  # a log.csv.gz is read as its CSV (pyarrow decompresses by extension)
 MALFORMED_MAX = 0.1  # a CSV with this share of rows of the wrong number of fields or more is refused (read_table)
 JITTER_MAX = 0.25  # a time-step spread up to this share of the period is taken as jitter (ImportReport.tolerance_hint)
@@ -159,9 +159,9 @@ class LogTable:
 
 def read_table(path: Path) -> LogTable:
     """Columns of a CSV, Parquet, JSON-lines, HDF5 or NumPy .npz file (CSV and JSON lines also
-    compressed, ``COMPRESSED``; HDF5's layouts and .npz: ``acn.datasets.arrays``) as float arrays (non-numeric columns are skipped;
-    date-time columns become seconds since the epoch; nested records are flattened, their columns
-    named "outer.inner"). A CSV's separator is read from its header: comma,
+    compressed, ``COMPRESSED``; HDF5's layouts and .npz: ``acn.datasets.arrays``) as float
+    arrays (non-numeric columns are skipped; date-time columns become seconds since the epoch;
+    nested records are flattened, their columns named "outer.inner"). A CSV's separator is read from its header: comma,
     semicolon or tab; ``#`` comment lines before the header are skipped; column names are stripped
     of surrounding spaces and quotes. A CSV row with another number of fields than the header (a
     last line cut off where the logger stopped mid-write, a line garbled by two writers) is set
