@@ -173,10 +173,10 @@ def _record(cfg: CollectConfig, out: str | Path, episodes: Iterator[Episode], pr
                 on_episode(ep)
     except KeyboardInterrupt:
         _stop(procs)
-        episodes.close()  # Ray: cancels the tasks still running
         path = _commit_quietly(writer, cfg) if writer.num_episodes else None
         if path is None:
             writer.abort()
+        episodes.close()  # after the commit: the finished episodes are safe whatever closing does
         raise Interrupted(path, writer.num_episodes) from None
     except BaseException:
         _stop(procs)

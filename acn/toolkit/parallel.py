@@ -194,11 +194,12 @@ def episodes_on_ray(config: "CollectConfig", indices: Iterable[int], in_flight: 
 
     At most ``in_flight`` tasks (default ``IN_FLIGHT_PER_CPU`` x the cluster's CPUs) are
     submitted beyond the last episode yielded; finished ones wait in Ray's object store. Closing
-    the generator (or an interrupt while it waits) cancels what is still running: a task that
-    has started gets a KeyboardInterrupt rather than a killed worker. (With ``force=True``, Ray's
-    driver once aborted on a loaded machine with "Tried to complete task that was not pending",
-    exit 1 instead of the interrupt's 130: a killed worker's failure racing its reply, we
-    suspect; not reproduced in 6 runs under load.)
+    the generator early (an interrupt, an error) drops the tasks still running without
+    ``ray.cancel``: their results are freed when they end, and Ray kills a driver's tasks when the
+    driver exits, as an interrupted command does. ``ray.cancel`` races the reply of a task that
+    is just finishing, and Ray's driver then aborts ("Tried to complete task that was not
+    pending", exit 1 instead of the interrupt's 130; seen with ``force=True`` in stop 39 and
+    with ``force=False`` in stop 54; ray-project/ray#54798 mends the same race on retries only).
     """
     ray = import_ray()
     if not ray.is_initialized():
@@ -215,18 +216,14 @@ def episodes_on_ray(config: "CollectConfig", indices: Iterable[int], in_flight: 
 
     for _ in range(in_flight):
         submit()
-    try:
-        while running:
-            try:
-                (episode,) = ray.get(running[0])
-            except ray.exceptions.RayTaskError as e:
-                raise _unwrap(ray, e) from None
-            running.popleft()
-            submit()
-            yield episode
-    finally:
-        for ref in running:
-            ray.cancel(ref)
+    while running:
+        try:
+            (episode,) = ray.get(running[0])
+        except ray.exceptions.RayTaskError as e:
+            raise _unwrap(ray, e) from None
+        running.popleft()
+        submit()
+        yield episode
 
 
 # ----- batch re-simulation ---------------------------------------------------------------------
