@@ -65,15 +65,28 @@ def _pd_gains(params: ModelParams, values) -> None:
     params.kd_scale = np.asarray(values["kd_scale"], float) * np.ones(NUM_JOINTS)
 
 
+def pd_gains_as_strength_damping(kp_scale: float, kd_scale: float, kd: float) -> tuple[float, float]:
+    """PD gains scaled by kp_scale and kd_scale as (motor strength, joint damping N m s/rad), the
+    same torque while the PD is unsaturated (its velocity target 0): kp_scale (kp e - kd qdot) -
+    (kd_scale - kp_scale) kd qdot. kd: the commanded derivative gain, N m s/rad."""
+    return kp_scale, (kd_scale - kp_scale) * kd
+
+
+def strength_damping_as_pd_gains(strength: float, damping: float, kd: float) -> tuple[float, float]:
+    """Motor strength s and joint damping d (N m s/rad) as PD gain scales (kp_scale, kd_scale), the
+    same torque while the PD is unsaturated: s (kp e - kd qdot) - d qdot = s kp e - (s kd + d) qdot.
+    The inverse of ``pd_gains_as_strength_damping``; kd > 0."""
+    return strength, strength + damping / kd
+
+
 def _pd_gains_alike(values, kd: float) -> str:
-    """PD gains scaled by kp_scale and kd_scale, while the PD is unsaturated (its velocity target 0):
-    torque kp_scale (kp e - kd qdot) - (kd_scale - kp_scale) kd qdot, i.e. motor strength kp_scale
-    and joint damping (kd_scale - kp_scale) kd; or, keeping the gains, kp_scale alone and joint
-    damping (kd_scale - 1) kd. Means over joints; "" where kd is 0 or the derivative gain is below
-    what strength alone gives (no damping is negative)."""
+    """PD gains as motor strength and joint damping (``pd_gains_as_strength_damping``), in words;
+    or, keeping the gains, kp_scale alone and joint damping (kd_scale - 1) kd. Means over joints;
+    "" where kd is 0 or the derivative gain is below what strength alone gives (no damping is
+    negative)."""
     kp_s, kd_s = float(np.mean(values["kp_scale"])), float(np.mean(values["kd_scale"]))
     smallest = 0.75 * CATALOGUE["joint_damping"].parameters[0].realistic[0]  # what rank.too_small calls none
-    damping = (kd_s - kp_s) * kd
+    _, damping = pd_gains_as_strength_damping(kp_s, kd_s, kd)
     if kd <= 0 or damping < -smallest:
         return ""
     if damping < smallest:
@@ -85,14 +98,13 @@ def _pd_gains_alike(values, kd: float) -> str:
 
 
 def _pd_gains_together(values: dict, kd: float) -> str:
-    """Motor strength s and joint damping d together, while the PD is unsaturated (its velocity
-    target 0): torque s (kp e - kd qdot) - d qdot = s kp e - (s kd + d) qdot, i.e. PD gains
-    kp x s, kd x (s + d / kd). Means over joints; "" where kd is 0."""
+    """Motor strength and joint damping together as PD gains (``strength_damping_as_pd_gains``),
+    in words. Means over joints; "" where kd is 0."""
     if kd <= 0:
         return ""
-    s = float(np.mean(values["motor_strength"]["scale"]))
-    d = float(np.mean(values["joint_damping"]["value"]))
-    return f"pd_gains kp_scale {s:.3g}, kd_scale {s + d / kd:.3g}"
+    kp_s, kd_s = strength_damping_as_pd_gains(float(np.mean(values["motor_strength"]["scale"])),
+                                              float(np.mean(values["joint_damping"]["value"])), kd)
+    return f"pd_gains kp_scale {kp_s:.3g}, kd_scale {kd_s:.3g}"
 
 
 def _payload(params: ModelParams, values) -> None:
