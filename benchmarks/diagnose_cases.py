@@ -356,9 +356,9 @@ def diagnose_pair(args, name: str, stem: str, over: dict, truth: list, seed: int
     tally["named"][1] += 1
     tally["same"][0] += both or reading is not None
     tally["same"][1] += 1
-    if reading is not None:
-        extra = [f"{n}({', '.join(f'{k}={float(np.mean(v)):.4g}' for k, v in fitted[n].items())})" for n in fitted]
-        fitted = reading
+    extra = [f"{n}({', '.join(f'{k}={float(np.mean(v)):.4g}' for k, v in values.items())})"
+             for n, values in fitted.items() if reading is not None or n not in hidden]  # all, where read anew
+    fitted = fitted if reading is None else reading
     cells = []
     for effect, key, true in truth:
         if effect in fitted:
@@ -368,9 +368,6 @@ def diagnose_pair(args, name: str, stem: str, over: dict, truth: list, seed: int
             cells.append(f"{effect}.{key}={value:.4g} (true {true:.4g})")
         else:
             cells.append(f"{effect} missed (true {key}={true:.4g})")
-    if reading is None:
-        extra = [f"{n}({', '.join(f'{k}={float(np.mean(v)):.4g}' for k, v in fitted[n].items())})"
-                 for n in fitted if n not in hidden]
     said = "yes" if both else "same" if reading is not None else "no"
     also = (" as " if reading is not None else " also ") + " ".join(extra) if extra else ""
     aside = f" set_aside={sorted(d.set_aside)}" if d.set_aside else ""
