@@ -326,7 +326,7 @@ def same_physics(fitted: dict, hidden: set[str], kd: float) -> dict | None:
     are the same physics while the PD is unsaturated: ``pd_gains`` as ``motor_strength`` +
     ``joint_damping``, or the reverse (``catalogue.pd_gains_as_strength_damping``; kd: the
     commanded derivative gain, N m s/rad); None where no such reading names exactly ``hidden``."""
-    pair, out = {"motor_strength", "joint_damping"}, dict(fitted)
+    pair, out = set(CATALOGUE["pd_gains"].reproduces), dict(fitted)  # motor_strength, joint_damping
     if "pd_gains" in out and pair <= hidden and not pair & set(out):
         g = out.pop("pd_gains")
         s, d = pd_gains_as_strength_damping(float(np.mean(g["kp_scale"])), float(np.mean(g["kd_scale"])), kd)
