@@ -356,8 +356,7 @@ def _scan_start(residual, z0: np.ndarray, free: Together, lo: np.ndarray, hi: np
     first = free.parts[0]
     target: list[float | None] = []
     for p in first.effect.parameters:
-        mid = float(np.mean(p.realistic)) if p.realistic and not p.signed else None
-        target += [mid] * first._size(p)
+        target += [p.realistic_middle] * first._size(p)
     target += [None] * (len(z0) - len(target))  # effects refitted along stay where they are
     scale = free.scale()
     direction = np.array([(t / s if t is not None else z) for t, s, z in zip(target, scale, z0)]) - z0

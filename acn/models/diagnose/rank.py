@@ -312,11 +312,10 @@ def over_steps_from_realistic(problem: Problem, model: Model, fit: EffectFit, ro
     in the ranking, and 3.31 kg with kp x 0.722 once added and fitted with the gains. Started
     from the corner, the refit stays in it. Only for a significant fit: the refit costs a
     multi-step fit, and a fit that removes nothing has no corner worth leaving."""
-    effect = fit.effect
-    middle = {p.name: (float(np.mean(p.realistic)) if p.realistic and not p.signed else p.nominal)
-              for p in effect.parameters}
-    start = fit_effect(problem, model, effect, fit.granularity, rows, start=middle, max_iter=0, refit=refittable(model))
-    ahead = multistep_refit(problem, start, rows, refit=refittable(model))
+    effect, refit = fit.effect, refittable(model)
+    middle = {p.name: p.nominal if p.realistic_middle is None else p.realistic_middle for p in effect.parameters}
+    start = fit_effect(problem, model, effect, fit.granularity, rows, start=middle, max_iter=0, refit=refit)
+    ahead = multistep_refit(problem, start, rows, refit=refit)
     return ahead if ahead is not start and not implausible(ahead) else fit
 
 

@@ -42,6 +42,11 @@ class Parameter:
     def nominal_for(self, control) -> float:
         return float(getattr(control, self.from_control)) if self.from_control else self.nominal
 
+    @property
+    def realistic_middle(self) -> float | None:
+        """The middle of the realistic range; None for a signed parameter or one without a range."""
+        return float(np.mean(self.realistic)) if self.realistic and not self.signed else None
+
 
 @dataclass(frozen=True)
 class Effect:
