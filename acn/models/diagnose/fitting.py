@@ -480,11 +480,11 @@ def multistep_refit(problem: Problem, fit: EffectFit, rows: np.ndarray, refit: t
     The one-step prediction starts from the MEASURED s_t, and its noise (velocities above all)
     moves the contact forces the model predicts: an errors-in-variables bias, measured as a
     payload fitted light. Over several steps the payload's signal grows while the start's noise
-    enters once. Instruments (``instrumental_refit``) fail for the trunk: contacts
-    switch between t - 2 and t + 2. Measured (typical sensor noise, 4 x 10 s logs, the payload's
-    mass): a pace log with 1.82 kg, 1.14 one-step -> 1.79 over 5 steps; 3.5 kg behind the trunk
-    3.37 -> 3.55. ``fit`` is kept where the refit makes the one-step prediction of ``rows`` worse
-    by more than ``IV_MAX_COST`` (pseudo-Huber), as the instrumental refit is.
+    enters once. Instruments (``instrumental_refit``) fail for the trunk: contacts switch between
+    t - 2 and t + 2. Measured with forward differences (typical sensor noise, 4 x 10 s logs, the
+    payload's mass): a pace log with 1.82 kg, 1.14 one-step -> 1.79 over 5 steps; 3.5 kg behind
+    the trunk 3.37 -> 3.55. ``fit`` is kept where the refit makes the one-step prediction of
+    ``rows`` worse by more than ``IV_MAX_COST`` (pseudo-Huber), as the instrumental refit is.
 
     Central differences (module docstring). Measured from 2.25 kg at the trunk's centre, on top
     of fitted PD gains (a pace log, 2.09 kg + kp x 0.618): forward differences stopped at 3.74 kg

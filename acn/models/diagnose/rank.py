@@ -309,8 +309,9 @@ def over_steps_from_realistic(problem: Problem, model: Model, fit: EffectFit, ro
     stands in for a heavy one near it. Measured on a pace log with a 3.58 kg payload and kp x
     0.727, on top of the PD gains: 0.68 kg 16 cm above the trunk (implausible, so the payload
     was never added); over five steps from 2.25 kg at the trunk's centre, 5.22 kg at 4 cm, first
-    in the ranking, and 3.31 kg with kp x 0.722 once added and fitted with the gains. Started
-    from the corner, the refit stays in it. Only for a significant fit: the refit costs a
+    in the ranking, and 3.31 kg with kp x 0.722 once added and fitted with the gains (forward
+    differences in the refit; with central ones, ``multistep_refit``, 3.15 kg with kp x 0.713).
+    Started from the corner, the refit stays in it. Only for a significant fit: the refit costs a
     multi-step fit, and a fit that removes nothing has no corner worth leaving."""
     effect, refit = fit.effect, refittable(model)
     middle = {p.name: p.nominal if p.realistic_middle is None else p.realistic_middle for p in effect.parameters}
