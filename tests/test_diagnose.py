@@ -661,12 +661,12 @@ def test_noisy_start_states_do_not_make_a_payload_light(tmp_path):
     ahead = multistep_refit(problem, ls, starts)
     ls_mass, mass = float(ls.values["mass"]), float(ahead.values["mass"])
     assert ls_mass < 0.88 * 1.82, ls_mass  # the bias (measured 1.48 kg here; 1.14 on a 4 x 10 s log)
-    assert abs(mass - 1.82) <= 0.15 * 1.82 and mass > ls_mass + 0.1, (ls_mass, mass)  # measured 1.613
+    assert abs(mass - 1.82) <= 0.15 * 1.82 and mass > ls_mass + 0.1, (ls_mass, mass)  # measured 1.648
     corner = fit_effect(problem, nominal, payload, "shared", starts, max_iter=0,
                         start={"mass": 0.68, "com_x": 0.1, "com_y": -0.1, "com_z": 0.16})
     assert implausible(corner), corner.values
     freed = over_steps_from_realistic(problem, nominal, corner, starts)
-    assert not implausible(freed) and abs(float(freed.values["mass"]) - 1.82) <= 0.15 * 1.82, freed.values  # 1.670
+    assert not implausible(freed) and abs(float(freed.values["mass"]) - 1.82) <= 0.15 * 1.82, freed.values  # 1.866
 
 
 @NOISY_LOGS
