@@ -637,6 +637,14 @@ def test_noisy_joint_readings_do_not_bias_the_fitted_friction(noisy_logs):
     # Friction's sign of a noisy speed is nonlinear in the noise, which instruments cannot undo
     # entirely (measured 0.347 here; 0.30 on benchmarks/diagnose_cases.py's friction log).
     assert abs(iv_value - 0.3) <= 0.2 * 0.3 and iv_value < ls_value - 0.01, (ls_value, iv_value)
+    # An effect without joint parameters fitted on top, the friction refitted beside it, leaves the
+    # friction's bias (one step is flat along it); the instruments solve for the friction alone.
+    biased = Model.parse("mujoco").with_effect(get_effect("joint_friction"), ls.values)
+    delay = fit_effect(problem, biased, get_effect("actuator_latency"), "shared", rows, start={"seconds": 0.0},
+                       max_iter=0, refit=("joint_friction",))
+    beside = instrumental_refit(problem, biased, delay, rows, refit=("joint_friction",))
+    assert delay.names == ["seconds", "joint_friction.value"] and beside.x[0] == delay.x[0], (delay.x, beside.x)
+    assert abs(beside.x[1] - 0.3) <= 0.2 * 0.3 and beside.x[1] < delay.x[1] - 0.01, (delay.x, beside.x)
 
 
 def test_noisy_start_states_do_not_make_a_payload_light(tmp_path):
