@@ -413,7 +413,7 @@ def _instrumented(free: Together) -> np.ndarray:
     """Which of ``free``'s parameters the instrumental refit solves for: all of them where the
     fitted effect has joint parameters, else the joint parameters of the effects refitted beside it."""
     joint = free.per_joint()
-    return np.ones_like(joint) if joint[: len(free.parts[0].names)].any() else joint
+    return np.ones_like(joint) if any(p.per_joint for p in free.effect.parameters) else joint
 
 
 def instrumental_refit(problem: Problem, base: Model, fit: EffectFit, rows: np.ndarray,
