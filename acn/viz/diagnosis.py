@@ -141,7 +141,7 @@ def predict_episode(problem, sim: Resimulator, stages: list[Stage], episode: int
 
         actions = corrected(corrector, d.state[ok], actions)
     model = np.repeat(np.arange(s), n)
-    pred = sim.run(d.starts(np.tile(ok, s), sim.backend, sim.configs, model), np.tile(actions, (s, 1)),
+    pred = sim.run(problem.starts(sim, np.tile(ok, s), sim.configs, model), np.tile(actions, (s, 1)),
                    np.tile(d.previous_actions(ok, problem.history), (s, 1, 1)), model=model)
     predicted = np.full((s, len(rows), len(STATE_NAMES)), np.nan)
     predicted[:, start] = pred.state[:, 0].reshape(s, n, -1)

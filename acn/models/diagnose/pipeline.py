@@ -325,7 +325,7 @@ def explain_corrector(data: Measurements, model: Model, corrector_dir, cfg: Diag
     actions = corrected(corrector, d.state[rows], d.action[rows])
     config = model.sim_config(problem.control)
     with Resimulator(model.backend, config, threads=cfg.threads) as sim:
-        pred = sim.run(d.starts(rows, model.backend, config), actions, d.previous_actions(rows, problem.history))
+        pred = sim.run(problem.starts(sim, rows, config), actions, d.previous_actions(rows, problem.history))
     outcome = pred.state[:, 0]
     unpredicted = np.isnan(outcome).all(0)  # contacts: keep the measured readings
     outcome[:, unpredicted] = d.next_state[rows][:, unpredicted]
