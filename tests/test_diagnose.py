@@ -557,6 +557,24 @@ def test_derived_joint_velocities_start_from_the_models_step(tmp_path):
     assert error["model's step"] < 0.5 * error["central"], error
 
 
+def test_instruments_leave_the_armature_to_least_squares_where_rows_start_from_the_models_step():
+    """Where rows start from the model's step (derived joint velocities), the instrumental refit
+    solves neither the armature nor, beside a fitted armature, a parameter without joints (a lag);
+    elsewhere it solves what it did before."""
+    from acn.models.diagnose.fitting import FreeParameters, Together, _instrumented
+
+    def solved(step: bool, *names: str) -> list[bool]:
+        free = Together([FreeParameters(get_effect(n), "shared", {}) for n in names])
+        return _instrumented(SimpleNamespace(velocities_from_step=step), free).tolist()
+
+    assert solved(False, "armature", "actuator_lag") == [True, True]
+    assert solved(True, "armature", "actuator_lag") == [False, False]
+    assert solved(True, "armature", "torque_limit") == [False, True]
+    assert solved(True, "joint_damping", "armature") == [True, False]
+    assert solved(False, "actuator_lag", "armature") == [False, True]
+    assert solved(True, "actuator_lag", "armature") == [False, False]
+
+
 def test_one_weak_motor_is_found_where_a_shared_strength_is_not_significant(tmp_path):
     """One motor (FR_calf) at half strength in a short noisy log: fitted as one strength for
     every joint it removes 4 % of the error (z 2.2), and nothing plausible does; the linear
