@@ -163,8 +163,7 @@ class Problem:
         if not self.velocities_from_step:
             return out
         rows = np.asarray(rows)
-        ok = (d.frame[rows] > 0) & (rows > 0)
-        ok[ok] &= (d.episode[rows[ok] - 1] == d.episode[rows[ok]]) & (d.frame[rows[ok] - 1] == d.frame[rows[ok]] - 1)
+        ok = np.isin(rows - 1, d.windows(2))  # the row before is the step before, in the same episode
         ok[ok] &= np.isfinite(d.state[rows[ok] - 1][:, _dynamic()]).all(1)
         if not ok.any():
             return out
