@@ -18,7 +18,11 @@ that same state would learn to predict part of the noise (the floor came out too
 logs: a correct friction fit "explained" 75 % of the error above it). So each term at row t is
 first predicted, by least squares on the fit rows, from the terms at rows t - 2 and t + 2 (which
 share no noise with row t), and the residual is regressed on those predictions. Rows without
-both neighbours in their episode are left out of the floor.
+both neighbours in their episode are left out of the floor. Where joint velocities are derived
+from the angles, rows t -+ 2 do share angle readings with row t (its start reads back to t - 2,
+``Problem.starts``; a derived velocity at t + 2 reads t + 1); measured on four logs behind a
+10 ms filter, under the true model, the floor is 0.985-0.994 of the error with the terms 2
+rows away and 0.988-0.994 with them 5 away, so they stay at 2.
 
 What they leave on held-out rows is the floor (per channel, never above the error itself).
 A linear library cannot represent every effect, so the floor is an upper bound on sensor
