@@ -92,6 +92,11 @@ def test_each_hidden_effect_is_ranked_first_fitted_and_removed(tmp_path, name):
     assert added.fit.granularity == ("joint" if name == "encoder_offset" else "shared"), added.fit.granularity
     assert added.judgement.removed >= 0.8 and added.judgement.explained(d.floor_mse) >= 0.8
     assert added.after.headline < added.before.headline
+    if name == "encoder_offset":  # refined once: a chain compared refined (add.other_starts) is not refined again
+        from acn.models.diagnose.add import refine_chain
+
+        residual = d.problem.residual_of(Model.parse("mujoco").sim_config(d.problem.control), d.judge_rows)
+        assert added.refined and refine_chain(d.problem, d.before, d.added, cfg, d.judge_rows, residual) is d.added
 
 
 def test_gains_scaled_alike_are_named_the_simpler_motor_strength(tmp_path):

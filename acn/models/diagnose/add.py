@@ -14,9 +14,10 @@ error at the longest horizon is not added (``rank.one_step_only``), nor one whos
 Then ``revisit`` judges each added effect again beside the others (a simpler effect takes a
 richer one's place where the chain then predicts no horizon worse), and ``other_starts`` runs
 the same greedy chain from the next-best first candidates, keeping one that predicts clearly
-better. Once the effects are chosen, ``refine_chain`` refines the fit of those that move the
-start state (encoder offsets) with central differences (``fitting`` module docstring), where
-that predicts the held-out rows no worse.
+better. ``refine_chain`` refines the fit of the effects that move the start state (encoder
+offsets) with central differences (``fitting`` module docstring), where that predicts the
+held-out rows no worse: on each chain before ``other_starts`` compares them, and on the effects
+chosen.
 """
 
 from __future__ import annotations
@@ -52,6 +53,7 @@ class Added:
     ties: list[Candidate] = field(default_factory=list)  # the candidate it was added as, first, and those of the
     # same ranking the held-out one step could not tell from it (``rank.tied_either_way``; ``--auto``'s effects and
     # the first one ``--add`` names); [] if none
+    refined: bool = False  # ``refine_chain`` has refined this step (or kept it where refining predicted worse)
 
     @property
     def name(self) -> str:
@@ -144,7 +146,7 @@ def refine_chain(problem: Problem, before: Comparison, steps: list[Added], cfg: 
     rows worse than ``steps`` (refined values that fit the fitting rows' noise: twelve offsets on a
     log with joint springs removed 2.5 % of the error refined, 10.9 % unrefined)."""
     first = next((i for i, s in enumerate(steps) if s.fit.effect.moves_start), None)
-    if first is None:
+    if first is None or all(s.refined for s in steps[first:]):  # nothing to refine, or refined already
         return steps
     out = steps[:first]
     current = out[-1].after if out else before
@@ -152,10 +154,14 @@ def refine_chain(problem: Problem, before: Comparison, steps: list[Added], cfg: 
     for step in steps[first:]:
         fit = _final_fit(problem, current.model, step.fit, cfg, again=True, central=step.fit.effect.moves_start)
         judgement = judge(problem, fit.model, judge_rows, residual)
-        out.append(Added(fit, judgement, current, compare(problem, fit.model, cfg), step.ties))
+        out.append(Added(fit, judgement, current, compare(problem, fit.model, cfg), step.ties, refined=True))
         current, residual = out[-1].after, judgement.residual_after
     refined, unrefined = (float(np.mean(c[-1].judgement.residual_after ** 2)) for c in (out, steps))
-    return out if refined <= unrefined else steps
+    if refined <= unrefined:
+        return out
+    for step in steps[first:]:
+        step.refined = True  # tried: refining it again gives the same
+    return steps
 
 
 def fit_over_steps(problem: Problem, steps: list[Added], cfg: DiagnoseConfig, judge_rows: np.ndarray,
@@ -437,13 +443,21 @@ def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge
     alike: fitted from other starting points, its values can be better (a fresh draw under
     feedback: armature 0.0327 added first, 0.0254 added after the torque limit, for 0.0253; one
     step 2.4 % better, z 7.0, 5 and 25 steps 12 % and 11 %).
+
+    Where another chain may replace the kept one (it predicts some horizon better, or none
+    worse), the two are compared refined (``refine_chain``; a no-op on a chain without an effect
+    that moves the start state), as the diagnosis would report them: twelve encoder offsets chosen
+    by forward differences are 20-40 % off, and another effect can make up for that. On the benchmark's
+    offsets log behind a 10 ms velocity filter, the chain ground_softness + encoder_offset
+    predicted one step 5.7 % better (z 7.8), 5 and 25 steps 2 % and 4 % better than the offsets
+    alone, both unrefined, and was kept (softness 0.025 s once refined, offsets 11.4 % off). Both
+    refined, it predicts one step 6.7 % better (z 7.7) but 5 and 25 steps 4 % and 25 % worse, and
+    the offsets alone are kept, 8.3 % off.
     """
     if not chain:
         return chain, []
     kept = Chain(chain, chain[0].name, kept=True, why="the best candidate first")
     tried = [kept]
-    if cfg.auto_alternatives <= 0:
-        return chain, tried
     pool = [c for c in ranking if c.judgement.significant and not doubt(c)]
     shortlist = replace(cfg, candidates=tuple(c.name for c in pool[:SHORTLIST]))
     for c in [c for c in pool if c.name != chain[0].name][:cfg.auto_alternatives]:
@@ -458,6 +472,10 @@ def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge
         if not steps:
             other.why = f"{c.name} is not added on its own final fit"
             continue
+        better, worse = horizon_votes(improvement(steps, kept.steps))
+        if better or not worse:  # it may replace the kept chain: compare the two as they would be reported
+            kept.steps = refine_chain(problem, first, kept.steps, cfg, judge_rows, base_residual)
+            other.steps = steps = refine_chain(problem, first, steps, cfg, judge_rows, base_residual)
         # The same effects added in another order are fitted from other starting points: the
         # chain that predicts better by the same rule keeps its values.
         same = " (the same effects, fitted otherwise)" if sorted(other.names) == sorted(kept.names) else ""
