@@ -446,13 +446,13 @@ def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge
 
     Where another chain may replace the kept one (it predicts some horizon better, or none
     worse), the two are compared refined (``refine_chain``; a no-op on a chain without an effect
-    that moves the start state), as the diagnosis would report them: twelve encoder offsets chosen
-    by forward differences are 20-40 % off, and another effect can make up for that. On the benchmark's
-    offsets log behind a 10 ms velocity filter, the chain ground_softness + encoder_offset
-    predicted one step 5.7 % better (z 7.8), 5 and 25 steps 2 % and 4 % better than the offsets
-    alone, both unrefined, and was kept (softness 0.025 s once refined, offsets 11.4 % off). Both
-    refined, it predicts one step 6.7 % better (z 7.7) but 5 and 25 steps 4 % and 25 % worse, and
-    the offsets alone are kept, 8.3 % off.
+    that moves the start state), as the diagnosis would report them: twelve encoder offsets
+    chosen by forward differences are 20-40 % off, and another effect can make up for that. On
+    the benchmark's offsets log behind a 10 ms velocity filter, the chain ground_softness +
+    encoder_offset predicted one step 5.7 % better (z 7.8), 5 and 25 steps 2 % and 4 % better
+    than the offsets alone, both unrefined, and was kept (softness 0.025 s once refined, offsets
+    11.4 % off). Both refined, it predicts one step 6.7 % better (z 7.7) but 5 and 25 steps 4 %
+    and 25 % worse, and the offsets alone are kept, 8.3 % off.
     """
     if not chain:
         return chain, []
