@@ -177,6 +177,23 @@ def test_a_richer_effect_gives_way_to_a_simpler_one_beside_the_others(tmp_path):
     assert chain[-1].after.headline <= 1.1 * d.final.headline  # as good as the richer chain
 
 
+def test_an_added_effect_no_longer_significant_beside_the_others_is_left_out(tmp_path):
+    """Damping 0.5 hidden; the ground's softness added first, then the damping. Judged again beside
+    the damping the softness is not significant, and the chain without it predicts as well, so it
+    is left out (``add.revisit``); the damping is kept."""
+    from acn.models.diagnose.add import revisit
+
+    data = measured(tmp_path, {"joint_damping": {"value": 0.5}})
+    nominal = Model.parse("mujoco")
+    cfg = replace(FAST, finest="shared", candidates=("ground_softness", "joint_damping"))
+    d = diagnose(data, nominal, cfg, add=["ground_softness", "joint_damping"])
+    assert [a.name for a in d.added] == ["ground_softness", "joint_damping"]
+    residual = d.problem.residual_of(nominal.sim_config(d.problem.control), d.judge_rows)
+    chain = revisit(d.problem, d.before, cfg, d.judge_rows, residual, d.added)
+    assert [a.name for a in chain] == ["joint_damping"], [(a.name, a.fit.values) for a in d.added]
+    assert close(chain[-1].fit.values["value"], 0.5, rel=0.05)
+
+
 def test_two_effects_one_stood_in_for_are_found_from_another_start(tmp_path):
     """Payload 2 kg and damping 0.4 hidden; both PD gains added alone (as greedy adding did on a
     noisy log: a higher derivative gain is damping, a lower proportional gain sags like a heavier

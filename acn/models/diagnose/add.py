@@ -517,35 +517,43 @@ def revisit(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows
     com_x 9 cm, was fitted again at 1.07 kg and com_x 13.6 cm (implausible), and motor strength
     took its place; that chain predicted 1, 5 and 25 steps 3.6 % (z -7.3), 26 % and 93 % worse
     (mean squares) than the payload's.
+
+    An effect that neither it nor a simpler one is significant beside the others is left out
+    (stop 65): added first, an effect can stand in for one added after it and end, once that one
+    is refitted beside it, near its nominal values. A fresh draw of floor friction 0.27 with
+    motor strength 0.89: the ground's softness, added first at 34.4 ms, ended at 18.8 ms (nominal
+    20 ms) beside both; judged again it removed 1.8 % of the one-step error (not significant),
+    and left out it changed the 1-, 5- and 25-step errors by +1.2 %, +0.1 % and -9 %. A chain
+    with an effect left out is kept where it predicts as well (``predicts_as_well``); where every
+    effect would be left out (each standing in for another), the chain stays as it is.
     """
     effects = names(added)
     if len(effects) < 2:
         return added
-    chosen = list(effects)
+    chosen: list[str | None] = list(effects)
     final = added[-1].after.model
     for i, a in enumerate(next(s for s in added if s.name == n) for n in effects):
         simpler = tuple(n for n in cfg.candidates if n not in chosen and _size(n) < _size(a.name))
-        if not simpler:
-            continue
         others = Model(final.backend, [t for t in final.effects if t.name != a.name], final.corrector)
         residual = problem.residual_of(others.sim_config(problem.control), judge_rows)
         if progress:
             progress(f"judging {a.name} again beside the other added effects", None)
         again = rank(problem, others, replace(cfg, candidates=(a.name, *simpler)), judge_rows, residual)
         top = next((c for c in again if c.judgement.significant and not doubt(c)), None)
-        if top is not None and top.name != a.name:
-            chosen[i] = top.name
-    if chosen == effects:
+        chosen[i] = top.name if top is not None else None
+    kept = [n for n in chosen if n is not None]
+    if kept == effects or not kept:
         return added
     chain, current, residual = [], first, base_residual
-    for name in chosen:
+    for name in kept:
         if progress:
             progress(f"adding {name}", None)
         step = add_effect(problem, current.model, name, cfg, judge_rows, residual, current)
         step.ties = next((s.ties for s in added if s.name == name), [])  # an effect kept: as it was added
         chain.append(step)
         current, residual = step.after, step.judgement.residual_after
-    if not predicts_no_worse(improvement(chain, added)):
+    holds = predicts_as_well if len(kept) < len(effects) else predicts_no_worse
+    if not holds(improvement(chain, added)):
         if progress:
             progress(f"{' + '.join(names(chain))} predicts worse: kept {' + '.join(effects)}", None)
         return added
