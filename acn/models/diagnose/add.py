@@ -12,7 +12,8 @@ error at the longest horizon is not added (``rank.one_step_only``), nor one whos
 (on more rows, at the granularity chosen) is no longer significant or turns implausible
 (``rank.implausible``): it is set aside with the reason, and the next candidate is tried.
 Then ``revisit`` judges each added effect again beside the others (a simpler effect takes a
-richer one's place where the chain then predicts no horizon worse), and ``other_starts`` runs
+richer one's place where the chain then predicts no horizon worse; one no longer significant
+is left out where the chain then predicts as well), and ``other_starts`` runs
 the same greedy chain from the next-best first candidates, keeping one that predicts clearly
 better. ``refine_chain`` refines the fit of the effects that move the start state (encoder
 offsets) with central differences (``fitting`` module docstring), where that predicts the
