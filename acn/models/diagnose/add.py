@@ -534,7 +534,7 @@ def revisit(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows
     chosen: list[str | None] = list(effects)
     final = added[-1].after.model
     for i, a in enumerate(next(s for s in added if s.name == n) for n in effects):
-        simpler = tuple(n for n in cfg.candidates if n not in chosen and _size(n) < _size(a.name))
+        simpler = tuple(n for n in cfg.candidates if n not in chosen and n not in effects and _size(n) < _size(a.name))
         others = Model(final.backend, [t for t in final.effects if t.name != a.name], final.corrector)
         residual = problem.residual_of(others.sim_config(problem.control), judge_rows)
         if progress:
