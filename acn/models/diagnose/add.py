@@ -519,7 +519,7 @@ def revisit(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows
     took its place; that chain predicted 1, 5 and 25 steps 3.6 % (z -7.3), 26 % and 93 % worse
     (mean squares) than the payload's.
 
-    An effect that neither it nor a simpler one is significant beside the others is left out
+    An effect is left out where neither it nor a simpler one is significant beside the others
     (stop 65): added first, an effect can stand in for one added after it and end, once that one
     is refitted beside it, near its nominal values. A fresh draw of floor friction 0.27 with
     motor strength 0.89: the ground's softness, added first at 34.4 ms, ended at 18.8 ms (nominal
