@@ -908,6 +908,38 @@ def test_parameters_the_data_cannot_pin_down_are_flagged():
     assert unidentified(fit) == ["value[FR_hip]", "value[FR_thigh]", "value[FR_calf]"]
 
 
+def test_standard_errors_count_rows_that_share_their_errors():
+    """Residuals correlated over consecutive rows (AR(1), 0.8 per row) on a slowly varying regressor:
+    the block sandwich's standard error follows the spread of the estimate over 200 draws; the
+    one that treats every residual as independent (``mujoco.sysid.calculate_intervals``) is
+    less than half of it."""
+    from mujoco import sysid
+    from scipy.signal import lfilter
+    from scipy.special import stdtrit
+
+    from acn.models.diagnose.fitting import _stderr
+
+    rng = np.random.default_rng(0)
+    rows, channels = 1000, 3
+
+    def correlated(rho: float) -> np.ndarray:  # unit variance, along the rows of each channel
+        e = rng.normal(size=(rows, channels)) * np.sqrt(1 - rho ** 2)
+        return lfilter([1.0], [1.0, -rho], e, axis=0).ravel()
+
+    estimates, blocks, independent = [], [], []
+    for _ in range(200):
+        x = correlated(0.9)
+        y = 2.0 * x + correlated(0.8)
+        theta = float(x @ y / (x @ x))
+        r, jac = (y - theta * x) / np.sqrt(rows), -x[:, None] / np.sqrt(rows)  # as ``Objective`` scales them
+        estimates.append(theta)
+        blocks.append(_stderr(r, jac, rows)[0])
+        independent.append(sysid.calculate_intervals([r], jac)[1][0] / stdtrit(r.size - 1, 0.975))
+    spread = float(np.std(estimates))
+    assert 0.7 * spread < np.mean(blocks) < 1.3 * spread, (spread, np.mean(blocks))
+    assert np.mean(independent) < 0.5 * spread, (spread, np.mean(independent))
+
+
 def ranked_candidate(rng: np.random.Generator, name: str, value: float, error: float, longer: float | None):
     """A significant candidate whose every parameter is ``value`` and whose held-out residuals
     (600 rows x 4 channels) have spread ``error``; ``longer``: its longest-horizon gain."""

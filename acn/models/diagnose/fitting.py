@@ -1,6 +1,6 @@
 """Fit one effect's parameters to measurements: least squares on re-simulated one-step
-predictions (``mujoco.minimize.least_squares``), confidence intervals from
-``mujoco.sysid.calculate_intervals``.
+predictions (``mujoco.minimize.least_squares``), standard errors from a sandwich over blocks of
+consecutive rows (``_stderr``: one trajectory's rows share their errors).
 
 A joint parameter is fitted at a GRANULARITY: one number shared by all joints (``shared``),
 one per joint type (``type``: hip, thigh, calf), one per leg (``leg``) or one per joint
@@ -239,7 +239,7 @@ class EffectFit:
     values: Values
     names: list[str]
     x: np.ndarray            # fitted free parameters
-    stderr: np.ndarray       # their standard errors (from the 95 % intervals)
+    stderr: np.ndarray       # their standard errors (``_stderr``: blocks of rows)
     model: Model             # the base model with this effect added
     cost: float              # mean squared normalised residual on the fit rows
     evaluations: int
@@ -342,7 +342,7 @@ def fit_effect(problem: Problem, base: Model, effect: Effect, granularity: str, 
             z, r = objective.best_z, objective.best_r
     objective.budget = np.inf  # the Jacobian for the intervals is always computed
     jac = _jacobian(objective, z, r, lo / scale, hi / scale, central)
-    stderr = _stderr(r, jac) * scale
+    stderr = _stderr(r, jac, len(rows)) * scale
     x = z * scale
     values = free.split(x)[0]
     return EffectFit(effect, granularity, values, free.names, x, stderr, free.model(base, x),
@@ -386,18 +386,40 @@ def _scan_start(residual, z0: np.ndarray, free: Together, lo: np.ndarray, hi: np
     return points[:, best], r[:, best], bool(moved)
 
 
-def _stderr(r: np.ndarray, jac: np.ndarray) -> np.ndarray:
-    """Standard errors from the Jacobian at the optimum (``mujoco.sysid.calculate_intervals``,
-    95 % half-widths, divided by the t quantile). They treat residuals as independent, which
-    rows of one trajectory are not: read them as a lower bound on the uncertainty."""
-    from mujoco import sysid
-    from scipy.special import stdtrit
+SANDWICH_BLOCK = 10  # consecutive rows per block of the sandwich covariance (their residuals are correlated)
 
-    out = np.full(jac.shape[1], np.inf)  # a parameter the residual does not depend on is not determined
+
+def sandwich(a: np.ndarray, scores: np.ndarray) -> np.ndarray:
+    """Covariance a^-1 B a^-T of an estimate solving sum_t scores_t(theta) = 0 with slope ``a`` (k, k),
+    B summed over blocks of ``SANDWICH_BLOCK`` consecutive rows of ``scores`` (rows, k): rows of one
+    trajectory share their errors over several steps, which a sum of per-row products ignores
+    (a cluster-robust sandwich, the blocks as clusters). inf where ``a`` is singular."""
+    k = a.shape[0]
+    blocks = scores[: len(scores) // SANDWICH_BLOCK * SANDWICH_BLOCK].reshape(-1, SANDWICH_BLOCK, k).sum(1)
+    if len(blocks) <= k or not np.all(np.isfinite(a)) or np.linalg.cond(a) > 1e12:
+        return np.full((k, k), np.inf)
+    a_inv = np.linalg.inv(a)
+    b = blocks.T @ blocks * (len(scores) / (len(blocks) * SANDWICH_BLOCK)) * (len(blocks) / (len(blocks) - k))
+    return a_inv @ b @ a_inv.T
+
+
+def _stderr(r: np.ndarray, jac: np.ndarray, rows: int) -> np.ndarray:
+    """Standard errors of a pseudo-Huber least-squares fit from its residual ``r`` (``rows`` x channels,
+    row-major) and Jacobian at the optimum: the M-estimator's ``sandwich`` over blocks of rows, slope
+    J' diag(psi'(r)) J, scores J' psi(r) per row (psi(r) = r / sqrt(1 + (r / delta)^2), the width
+    delta the fit's: 3 robust sigmas). ``mujoco.sysid.calculate_intervals`` treats every residual
+    as independent; one trajectory's rows are not: on three logs' final fits these came out 1.0-3.2x
+    its (docs/diagnosis.md, stop 66). Both are the local slope's: neither sees a cost
+    that is rough along a valley (two parameters trading off), nor a bias (a fitted value several
+    of them from the truth is no rarity). inf for a parameter the residual does not depend on."""
+    out = np.full(jac.shape[1], np.inf)
     moving = np.abs(jac).max(axis=0) > 0
     if moving.any():
-        _, intervals = sysid.calculate_intervals([r], jac[:, moving])
-        out[moving] = np.asarray(intervals) / stdtrit(max(1, r.size - int(moving.sum())), 0.975)
+        j = jac[:, moving]
+        delta = 3.0 * 1.4826 * float(np.median(np.abs(r))) or 1e-9
+        w = 1.0 / np.sqrt(1.0 + (r / delta) ** 2)
+        scores = (j * (w * r)[:, None]).reshape(rows, -1, j.shape[1]).sum(1)
+        out[moving] = np.sqrt(np.clip(np.diag(sandwich(j.T @ (w[:, None] ** 3 * j), scores)), 0.0, None))
     return out
 
 
@@ -501,15 +523,12 @@ def instrumental_refit(problem: Problem, base: Model, fit: EffectFit, rows: np.n
         if np.any(z_new < lo / scale) or np.any(z_new > hi / scale):
             return fit
         z = z_new
-    # The instrumental estimate's uncertainty: sandwich covariance over blocks of 10 rows.
     r = objective(z.reshape(-1, 1))[:, 0][:half].reshape(len(rows), -1)
     if _costs_too_much(r0, r.ravel()):
         return fit  # removing a noise bias costs a few per cent of fit; more is an equation gone astray
     k = int(solved.sum())
-    g = (instrument.reshape(len(rows), -1, k) * (w.reshape(len(rows), -1) * r)[:, :, None]).sum(1)
-    blocks = g[: len(g) // 10 * 10].reshape(-1, 10, k).sum(1)
-    a_inv = np.linalg.inv(a)
-    cov = a_inv @ (blocks.T @ blocks) @ a_inv.T * (len(g) / max(1, len(blocks) * 10))
+    scores = (instrument.reshape(len(rows), -1, k) * (w.reshape(len(rows), -1) * r)[:, :, None]).sum(1)
+    cov = sandwich(a, scores)  # the instrumental estimate's uncertainty
     x = z * scale
     values = free.split(x)[0]
     stderr = fit.stderr.copy()
