@@ -396,7 +396,7 @@ def sandwich(a: np.ndarray, scores: np.ndarray) -> np.ndarray:
     (a cluster-robust sandwich, the blocks as clusters). inf where ``a`` is singular."""
     k = a.shape[0]
     blocks = scores[: len(scores) // SANDWICH_BLOCK * SANDWICH_BLOCK].reshape(-1, SANDWICH_BLOCK, k).sum(1)
-    if len(blocks) <= k or not np.all(np.isfinite(a)) or np.linalg.cond(a) > 1e12:
+    if len(blocks) <= k or not np.all(np.isfinite(a)) or np.linalg.cond(a) > 1e15:
         return np.full((k, k), np.inf)
     a_inv = np.linalg.inv(a)
     b = blocks.T @ blocks * (len(scores) / (len(blocks) * SANDWICH_BLOCK)) * (len(blocks) / (len(blocks) - k))
@@ -408,10 +408,10 @@ def _stderr(r: np.ndarray, jac: np.ndarray, rows: int) -> np.ndarray:
     row-major) and Jacobian at the optimum: the M-estimator's ``sandwich`` over blocks of rows, slope
     J' diag(psi'(r)) J, scores J' psi(r) per row (psi(r) = r / sqrt(1 + (r / delta)^2), the width
     delta the fit's: 3 robust sigmas). ``mujoco.sysid.calculate_intervals`` treats every residual
-    as independent; one trajectory's rows are not: on three logs' final fits these came out 1.0-3.2x
-    its (docs/diagnosis.md, stop 66). Both are the local slope's: neither sees a cost
-    that is rough along a valley (two parameters trading off), nor a bias (a fitted value several
-    of them from the truth is no rarity). inf for a parameter the residual does not depend on."""
+    as independent; one trajectory's rows are not: on three logs' final fits these came out
+    1.0-3.2x its (docs/diagnosis.md, stop 66). Both are the local slope's: neither sees a cost that
+    is rough along a valley (two parameters trading off), nor a bias (a fitted value several of
+    them from the truth is no rarity). inf for a parameter the residual does not depend on."""
     out = np.full(jac.shape[1], np.inf)
     moving = np.abs(jac).max(axis=0) > 0
     if moving.any():
