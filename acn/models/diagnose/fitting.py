@@ -409,9 +409,10 @@ def _stderr(r: np.ndarray, jac: np.ndarray, rows: int) -> np.ndarray:
     J' diag(psi'(r)) J, scores J' psi(r) per row (psi(r) = r / sqrt(1 + (r / delta)^2), the width
     delta the fit's: 3 robust sigmas). ``mujoco.sysid.calculate_intervals`` treats every residual
     as independent; one trajectory's rows are not: these came out 1.0-3.2x its on three logs' final
-    fits and 1.4-5.6x on ``make demo``'s hidden log's ranking (docs/diagnosis.md, stop 66). Both are the local slope's: neither sees a cost that
-    is rough along a valley (two parameters trading off), nor a bias (a fitted value several of
-    them from the truth is no rarity). inf for a parameter the residual does not depend on."""
+    fits and 1.4-5.6x on ``make demo``'s hidden log's ranking (docs/diagnosis.md, stop 66). Both
+    are the local slope's: neither sees a cost that is rough along a valley (two parameters trading
+    off), nor a bias (a fitted value several of them from the truth is no rarity). inf for a
+    parameter the residual does not depend on."""
     out = np.full(jac.shape[1], np.inf)
     moving = np.abs(jac).max(axis=0) > 0
     if moving.any():
