@@ -85,12 +85,21 @@ class SoftL1(minimize.Norm):
     def __init__(self, delta: float) -> None:
         self.delta = float(delta)
 
+    @classmethod
+    def around(cls, r: np.ndarray) -> "SoftL1":
+        """The norm 3 robust sigmas of the residual ``r`` wide (at least 1e-9)."""
+        return cls(max(3.0 * 1.4826 * float(np.median(np.abs(r))), 1e-9))
+
+    def weights(self, r: np.ndarray) -> np.ndarray:
+        """psi(r) / r: how much each residual counts (1 for small ones, delta / |r| for large ones)."""
+        return 1.0 / np.sqrt(1.0 + (r / self.delta) ** 2)
+
     def value(self, r: np.ndarray) -> np.float64:
         d = self.delta
         return np.float64(np.sum(d * d * (np.sqrt(1.0 + (r / d) ** 2) - 1.0)))
 
     def grad_hess(self, r: np.ndarray, proj: np.ndarray):
-        w = 1.0 / np.sqrt(1.0 + (r / self.delta) ** 2)
+        w = self.weights(r)
         return proj.T @ (r * w), proj.T @ (proj * (w ** 3))
 
 
@@ -329,7 +338,7 @@ def fit_effect(problem: Problem, base: Model, effect: Effect, granularity: str, 
     # residual), so rows that jump stay outliers as the fit closes in.
     stages = 1 if max_iter <= 3 else 3
     for stage in range(stages if sensitive else 0):
-        objective.norm = SoftL1(max(3.0 * 1.4826 * float(np.median(np.abs(r))), 1e-9))
+        objective.norm = SoftL1.around(r)
         objective.best_cost, objective.best_z, objective.best_r = float(objective.norm.value(r)), z, r
         try:
             minimize.least_squares(z, objective, bounds=[lo / scale, hi / scale], norm=objective.norm, eps=FD_STEP,
@@ -416,11 +425,10 @@ def _stderr(r: np.ndarray, jac: np.ndarray, rows: int) -> np.ndarray:
     out = np.full(jac.shape[1], np.inf)
     moving = np.abs(jac).max(axis=0) > 0
     if moving.any():
-        j = jac[:, moving]
-        delta = 3.0 * 1.4826 * float(np.median(np.abs(r))) or 1e-9
-        w = 1.0 / np.sqrt(1.0 + (r / delta) ** 2)
-        scores = (j * (w * r)[:, None]).reshape(rows, -1, j.shape[1]).sum(1)
-        out[moving] = np.sqrt(np.clip(np.diag(sandwich(j.T @ (w[:, None] ** 3 * j), scores)), 0.0, None))
+        j, norm = jac[:, moving], SoftL1.around(r)
+        _, slope = norm.grad_hess(r.reshape(-1, 1), j)  # J' diag(psi'(r)) J, as the fit's Gauss-Newton steps
+        scores = (j * (norm.weights(r) * r)[:, None]).reshape(rows, -1, j.shape[1]).sum(1)
+        out[moving] = np.sqrt(np.clip(np.diag(sandwich(slope, scores)), 0.0, None))
     return out
 
 
@@ -432,7 +440,7 @@ def _costs_too_much(before: np.ndarray, after: np.ndarray) -> bool:
     """Whether a refit's residuals ``after`` cost more than ``IV_MAX_COST`` x the fit's ``before``,
     under the pseudo-Huber norm 3 robust sigmas of ``before`` wide: removing a noise bias costs a
     few per cent of fit, more is an estimate gone astray (``instrumental_refit``, ``multistep_refit``)."""
-    soft = SoftL1(3.0 * 1.4826 * float(np.median(np.abs(before))) or 1e-9)
+    soft = SoftL1.around(before)
     return soft.value(after) > IV_MAX_COST * soft.value(before)
 
 
@@ -510,8 +518,7 @@ def instrumental_refit(problem: Problem, base: Model, fit: EffectFit, rows: np.n
 
     jac = _jacobian(moved, z[solved], r, (lo / scale)[solved], (hi / scale)[solved], central)
     j_now, instrument = jac[:half], 0.5 * (jac[half:2 * half] + jac[2 * half:])  # J at t +- IV_LAG, averaged
-    delta = 3.0 * 1.4826 * float(np.median(np.abs(r[:half]))) or 1e-9
-    w = 1.0 / np.sqrt(1.0 + (r[:half] / delta) ** 2)  # the least-squares fit's robust weights, kept fixed
+    w = SoftL1.around(r[:half]).weights(r[:half])  # the least-squares fit's robust weights, kept fixed
     a = instrument.T @ (w[:, None] * j_now)
     if not np.all(np.isfinite(a)) or np.linalg.cond(a) > 1e8:
         return fit
