@@ -55,11 +55,11 @@ demo: $(STAMP)
 	$(BIN)/acn-fit $(OUT)/trot_pb_mj --model $(OUT)/trot_pb_mj.model.json --out $(OUT)/acn_on_physics --overwrite
 	@echo "corrector on top of the physics model: $(OUT)/acn_on_physics (metrics.json: closed_loop)"
 	# Measurements with two hidden effects (the answer goes to $(OUT)/hidden.answer.json), then the diagnosis:
-	# compare, where, rank the catalogue, add effects while the error falls, report.
+	# compare, where, rank the catalogue, add effects while the error falls, what the log rules out, report.
 	$(BIN)/acn-collect --source mujoco --policy excite --episodes 6 --seconds 8 --seed 3 --workers 2 \
 		--hidden-effect actuator_latency --hidden-effect joint_damping --out $(OUT)/hidden --overwrite
-	$(BIN)/acn-diagnose $(OUT)/hidden --model mujoco --auto --closed-loop 4 --json $(OUT)/hidden.diagnosis.json \
-		--report $(OUT)/hidden.report.html --save-model $(OUT)/hidden.model.json
+	$(BIN)/acn-diagnose $(OUT)/hidden --model mujoco --auto --limits --closed-loop 4 \
+		--json $(OUT)/hidden.diagnosis.json --report $(OUT)/hidden.report.html --save-model $(OUT)/hidden.model.json
 	@echo "diagnosis: $(OUT)/hidden.report.html (HTML), $(OUT)/hidden.diagnosis.json, fitted model $(OUT)/hidden.model.json"
 	@echo "the hidden answer: $(OUT)/hidden.answer.json"
 	$(BIN)/acn-view $(OUT)/hidden --model $(OUT)/hidden.model.json --diagnosis $(OUT)/hidden.diagnosis.json --save $(OUT)/hidden.rrd

@@ -668,6 +668,8 @@ def diagnose_parser() -> argparse.ArgumentParser:
     p.add_argument("--explain-corrector", type=Path, default=None, metavar="DIR",
                    help="explain a corrector from acn-fit: which effects its corrections look like")
     p.add_argument("--list-effects", action="store_true", help="print the catalogue of effects and exit")
+    p.add_argument("--limits", action="store_true",
+                   help="then the smallest size of each effect not named that this log would show: what it rules out")
     p.add_argument("--closed-loop", type=_nonneg_int, default=0, metavar="N",
                    help="then re-run the measured robot (an acn-collect dataset) from N held-out initial states beside "
                    "the model as given, with --corrector and with the added effects: divergence, eps_transfer, falls")
@@ -713,6 +715,8 @@ def diagnose_main(argv: list[str] | None = None) -> int:
             raise UserError(f"measurement dataset {args.measured} does not exist")
         if args.corrector is not None and not args.closed_loop:
             raise UserError("--corrector is run in closed loop: give --closed-loop N as well")
+        if args.limits and args.explain_corrector is not None:
+            raise UserError("--limits and --explain-corrector are separate questions: ask one at a time")
         if args.closed_loop and args.explain_corrector is not None:
             raise UserError("--closed-loop and --explain-corrector are separate questions: ask one at a time")
         if args.corrector is not None and not args.corrector.is_dir():
@@ -746,6 +750,10 @@ def diagnose_main(argv: list[str] | None = None) -> int:
                 result = explain_corrector(data, model, args.explain_corrector, cfg, progress=say)
             else:
                 result = diagnose(data, model, cfg, add=args.add, automatic=args.auto, progress=say)
+            if args.limits:
+                from acn.models.diagnose.pipeline import rule_out
+
+                result.limits = rule_out(result, cfg.candidates, progress=say)
             if args.closed_loop:
                 from acn.models.diagnose.transfer import closed_loop_models
 

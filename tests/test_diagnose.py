@@ -356,6 +356,36 @@ def test_noisy_log_from_another_controller_finds_the_latency(noisy_logs):
     assert added.judgement.explained(d.floor_mse) >= 0.8 and added.after.headline < added.before.headline
 
 
+@NOISY_LOGS
+def test_the_smallest_effect_a_log_shows_is_where_a_hidden_one_is_named(noisy_logs, tmp_path):
+    """``--limits`` on a noisy log without effects: the smallest joint damping ``--auto`` would name.
+    The same log (same seed, same noise) written with damping at 2.5x that is named, at 0.3x not."""
+    from acn.datasets.importer import ImportConfig, import_log
+    from acn.models.diagnose.limits import sizes
+    from acn.models.diagnose.pipeline import rule_out
+
+    cfg = replace(FAST, candidates=("joint_damping", "motor_strength", "joint_friction", "armature"))
+    d = diagnose(load_measurements(noisy_logs["nominal"]), Model.parse("mujoco"), cfg, automatic=True)
+    assert d.verdict == "none", d.reason
+    (limit,) = rule_out(d, ("joint_damping",))
+    assert limit.value is not None and limit.sizes[0] < limit.value <= limit.sizes[-1], limit.to_json()
+    assert np.all(np.diff(limit.removed) > 0) and np.all(np.diff(limit.detected.astype(int)) >= 0), limit.to_json()
+    assert "could be missed" in terminal(replace(d, limits=[limit]))
+    for factor, named in ((2.5, True), (0.3, False)):
+        value = factor * limit.value
+        damping = lambda spec: [setattr(j, "damping", value) for j in spec.joints if j.name != "root"]  # noqa: E731
+        write_log(tmp_path / f"{factor}.csv", LogSpec(noise=1.0, seed=1, spec_edit=damping))
+        path, _ = import_log(tmp_path / f"{factor}.csv", tmp_path / f"log{factor}", ImportConfig(50, 60.0, 1.5, 33.5))
+        found = diagnose(load_measurements(path), Model.parse("mujoco"), cfg, automatic=True)
+        assert (found.verdict == "effect") == named, (value, found.reason)
+    # The sizes scanned run from nominal towards the realistic range, within the bounds.
+    control = d.problem.control
+    below = sizes(get_effect("torque_limit").parameters[0], control)
+    assert np.all(np.diff(below) < 0) and below[0] < control.torque_limit and below[-1] >= 1.0, below
+    signed = sizes(get_effect("encoder_offset").parameters[0], control)
+    assert np.all(signed > 0) and np.isclose(signed[-1], 0.3), signed
+
+
 def test_a_closed_loop_controllers_noisy_log_finds_the_damping(tmp_path):
     """A controller that levels the trunk on its measured, noisy roll and pitch (the pace gait,
     which falls open loop, stays upright): the log's actions carry the noise of the states the

@@ -42,6 +42,7 @@ from acn.models.diagnose.accelerometer import Accelerometer, read_accelerometer
 from acn.models.diagnose.add import (Added, Chain, add_effect, auto, fit_over_steps, longest_removed, names,
                                      refine_chain)
 from acn.models.diagnose.compare import Comparison, compare, floor_of, informative_horizon
+from acn.models.diagnose.limits import Limit, limits
 from acn.models.diagnose.pairing import action_row
 from acn.models.diagnose.problem import DiagnoseConfig, Problem, corrected, prepare
 from acn.models.diagnose.rate import physics_rate
@@ -75,6 +76,7 @@ class Diagnosis:
     chains: list[Chain] = field(default_factory=list)  # --auto: every chain of added effects tried (``add.auto``)
     set_aside: dict[str, str] = field(default_factory=dict)  # --auto: not added on their final fit: name -> why
     accelerometer: Accelerometer | None = None  # how the logged accelerometer is read (``accelerometer``)
+    limits: list[Limit] | None = None  # --limits: the smallest size of each effect not named it shows (``rule_out``)
 
     @property
     def floor_mse(self) -> float:
@@ -303,6 +305,17 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
     return Diagnosis(data.description, problem, before, judge_rows, floor, mse, where, ranking, added, v, reason,
                      seconds={"compare": t1 - t0, "rank": t2 - t1, "add": t3 - t2, "total": t3 - t0},
                      data_checks=findings, chains=chains, set_aside=set_aside, accelerometer=accelerometer)
+
+
+def rule_out(d: Diagnosis, candidates: tuple[str, ...], progress=None) -> list[Limit]:
+    """What the log rules out beside the final model: the smallest size of each of the ``candidates``
+    not in it that the diagnosis would have named (``acn.models.diagnose.limits``)."""
+    if progress:
+        progress("the smallest effects this log shows", None)
+    model = d.final.model
+    residual = d.problem.residual_of(model.sim_config(d.problem.control), d.judge_rows)
+    return limits(d.problem, model, d.judge_rows, np.where(np.isfinite(residual), residual, 10.0), d.floor_mse,
+                  candidates)
 
 
 def explain_corrector(data: Measurements, model: Model, corrector_dir, cfg: DiagnoseConfig | None = None,

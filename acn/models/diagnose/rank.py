@@ -261,6 +261,12 @@ def screen(horizon: LongestHorizon, ranking: list[Candidate]) -> None:
     longer_gains(horizon, plausible[:SCREENED], until_one_passes=True)
 
 
+def significant_gain(gain: float, z: float) -> bool:
+    """Whether a held-out improvement of ``gain`` (share of the error) at paired ``z`` is significant:
+    at least ``MIN_IMPROVEMENT``, and ``SIGNIFICANCE_Z`` standard errors or ``LARGE_IMPROVEMENT``."""
+    return bool(gain >= MIN_IMPROVEMENT and (z >= SIGNIFICANCE_Z or gain >= LARGE_IMPROVEMENT))
+
+
 def judge(problem: Problem, after: Model, rows: np.ndarray, before_residual: np.ndarray,
           reference_mse: float | None = None) -> Judgement:
     """``after`` against the residuals ``before_residual`` of the current model on ``rows``.
@@ -276,8 +282,7 @@ def judge(problem: Problem, after: Model, rows: np.ndarray, before_residual: np.
     z = paired_z(eb - ea)
     removed = 1.0 - mse_a / mse_b if mse_b > 0 else 0.0
     gain = (mse_b - mse_a) / (reference_mse or mse_b) if mse_b > 0 else 0.0
-    significant = gain >= MIN_IMPROVEMENT and (z >= SIGNIFICANCE_Z or gain >= LARGE_IMPROVEMENT)
-    return Judgement(mse_b, mse_a, removed, z, bool(significant), ra)
+    return Judgement(mse_b, mse_a, removed, z, significant_gain(gain, z), ra)
 
 
 def rank(problem: Problem, model: Model, cfg: DiagnoseConfig, judge_rows: np.ndarray, base_residual: np.ndarray,

@@ -48,7 +48,13 @@ JSON keys (the machine-readable contract):
   ``--corrector``, ``with effects`` = the final model, the oracles), each with ``divergence``, ``divergence_by_group``, ``divergence_curve``,
   ``eps_transfer``, ``target_falls``, ``reward_gap_per_episode`` and (all but the first run)
   ``versus``: against the first run, episode by episode (``acn.models.evaluate.versus``);
-  ``models`` (what each run ran), ``robot``.
+  ``models`` (what each run ran), ``robot``;
+- ``limits`` (with ``--limits``, else null): per parameter with a realistic range of each effect not
+  in the final model (``acn.models.diagnose.limits``): ``effect``, ``parameter``, ``unit``,
+  ``nominal``, ``limit`` (the smallest value ``--auto`` would name beside the final model; null:
+  none scanned), ``realistic``, ``realistic_missable`` (the part of the realistic range below the
+  limit), ``inert`` (alone, the effect's other parameters nominal, it changes nothing), and the scan:
+  ``sizes``, ``removed``, ``z``, ``detected``.
 """
 
 from __future__ import annotations
@@ -259,6 +265,7 @@ def to_json(d: Diagnosis) -> dict:
         "model": d.before.model.to_json(), "final_model": d.final.model.to_json(),
         "seconds": d.seconds,
         "closed_loop": d.closed_loop,
+        "limits": [x.to_json() for x in d.limits] if d.limits is not None else None,
     }
 
 
@@ -332,9 +339,22 @@ def terminal(d: Diagnosis) -> str:
         out += [f"  {c.start}: {c.label}; {'KEPT, ' if c.kept else ''}{c.why}"
                 for c in d.chains]
     out += ["", f"verdict: {d.verdict} ({d.reason})"]
+    if d.limits:
+        out += ["", LIMITS, _table(["effect", "parameter", "shown from", "realistic", "could be missed"],
+                                   [_limit_row(x) for x in d.limits if not x.inert])]
     if d.closed_loop:
         out += ["", closed_loop_table(d.closed_loop)]
     return "\n".join(out)
+
+
+LIMITS = ("what this log rules out: the smallest size of each effect not in the final model that --auto would "
+          "name beside it, one step ahead (optimistic: a fit that finds it exactly, nothing standing in for it, no "
+          "noise bias; every joint alike, the effect's other parameters nominal; a parameter that alone changes "
+          "nothing, such as a payload's centre of mass, is left out)")
+
+
+def _limit_row(x) -> list[str]:
+    return [x.effect, x.parameter, x.describe(), x.realistic_text(), x.missable()]
 
 
 # ----- HTML -----------------------------------------------------------------------------------
@@ -431,7 +451,7 @@ td,th{{border:1px solid #ccc;padding:4px 8px}}</style></head><body>
 <th>{d.before.check}-step error removed</th><th>parameters</th><th>set aside because</th></tr>{ranking}</table>
 {'<h2>Added</h2><ul>' + added + '</ul>' if added else ''}
 {'<p>Chains of effects tried by --auto (one effect can stand in for two):</p><ul>' + chains + '</ul>' if chains else ''}
-{loop_html}
+{_limits_html(d)}{loop_html}
 <h2>Plots</h2>{''.join(parts)}</body></html>"""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -439,6 +459,16 @@ td,th{{border:1px solid #ccc;padding:4px 8px}}</style></head><body>
     tmp.write_text(body)
     tmp.replace(path)
     return path
+
+
+def _limits_html(d: Diagnosis) -> str:
+    if not d.limits:
+        return ""
+    rows = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in _limit_row(x)) + "</tr>"
+                   for x in d.limits if not x.inert)
+    return (f"<h2>What this log rules out</h2><p>{html.escape(LIMITS[len('what this log rules out: '):])}.</p>"
+            "<table><tr><th>effect</th><th>parameter</th><th>shown from</th><th>realistic</th><th>could be missed</th>"
+            f"</tr>{rows}</table>")
 
 
 def _headline(c: Comparison, h: int) -> float:

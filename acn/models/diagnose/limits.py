@@ -1,0 +1,168 @@
+"""What a log can rule out: the smallest size of each catalogue effect the diagnosis would name.
+
+A diagnosis that names nothing, or names one effect and not a second, leaves the question
+how large a missed effect could be. For every parameter with a realistic range, of every
+catalogue effect the final model does not hold:
+
+- its one-step signature s(m) on the judge rows: the final model's prediction with the effect
+  added at ``nominal + m`` (every joint alike, its other parameters nominal) minus without it,
+  in the residual's normalised channels, at ``GRID`` sizes m up to ``LARGEST_FACTOR`` x the
+  largest realistic magnitude (within the parameter's bounds);
+- were the effect in the robot, the measured next states would move by s(m) (to first order:
+  the prediction starts from the same measured state), and the final model's residual r would
+  be r + s(m); a fit that found the effect exactly would leave r;
+- the effect counts as detected at m where that perfect fit passes the rules ``--auto`` adds
+  by: ``rank.judge``'s significance (at least ``MIN_IMPROVEMENT`` of the error, z >= 3 over
+  blocks of rows, or ``LARGE_IMPROVEMENT``) and ``add.too_little`` at one step (explains
+  ``AUTO_MIN_EXPLAINED`` of the error above the noise floor, removes ``AUTO_MIN_REMOVED``);
+- the limit: the smallest such m, the bracket between the grid sizes around it halved
+  ``BISECTIONS`` times (the limit is its upper end).
+
+A limit is optimistic: it assumes the fit finds the effect exactly, that no other effect
+stands in for it, and that noise in the measured start states does not bias its fit
+(Coulomb friction from a noisy speed fits high: the reason a small friction is missed beside
+a larger effect). An effect that the log shows only over long predictions (a torque limit
+reached on few steps, ``rank.uneven``) can be found below its one-step limit. A signed
+parameter (an offset) is scanned in the + direction only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from acn.models.diagnose.add import too_little
+from acn.models.diagnose.problem import Problem
+from acn.models.diagnose.rank import LARGEST_FACTOR, Judgement, paired_z, significant_gain
+from acn.toolkit.effects import Effect, Model, Parameter, get_effect
+
+GRID = 6         # sizes scanned per parameter: LARGEST_FACTOR x the largest realistic magnitude, halved GRID - 1 times
+BISECTIONS = 2   # halvings of the bracket around the limit (in the log of the distance: within a factor 2^(1/4))
+
+
+@dataclass
+class Limit:
+    """The smallest size of one parameter of an effect that a log would show (module docstring)."""
+
+    effect: str
+    parameter: str
+    unit: str
+    nominal: float
+    sizes: np.ndarray      # (GRID,) values scanned (the parameter's value, not its distance from nominal)
+    removed: np.ndarray    # (GRID,) share of the would-be error a perfect fit removes at each
+    z: np.ndarray          # (GRID,) its paired z over blocks of rows
+    detected: np.ndarray   # (GRID,) whether ``--auto`` would add it there (one step)
+    value: float | None    # the limit (a value of the parameter); None where no size scanned is detected
+    realistic: tuple[float, float]
+
+    @property
+    def inert(self) -> bool:
+        """Whether the parameter alone (the effect's others nominal) changes no prediction."""
+        return not np.any(self.removed > 0)
+
+    def describe(self) -> str:
+        if self.inert:
+            return "no effect alone (its other parameters nominal)"
+        if self.value is None:
+            return f"not shown up to {_short(self.sizes[-1])}{_unit(self.unit)}"
+        return f"{_short(self.value)}{_unit(self.unit)}"
+
+    def realistic_text(self) -> str:
+        return f"{_short(self.realistic[0])}..{_short(self.realistic[1])}{_unit(self.unit)}"
+
+    def missable(self) -> str:
+        """The part of the realistic range (in distance from nominal) below the limit: what the log could miss."""
+        near, far = sorted(self.realistic, key=lambda x: abs(x - self.nominal))
+        if self.inert:
+            return ""
+        if self.value is None or abs(self.value - self.nominal) > abs(far - self.nominal):
+            return "all of it"
+        if abs(self.value - self.nominal) <= abs(near - self.nominal):
+            return "none"
+        return "..".join(_short(v) for v in sorted((near, self.value)))
+
+    def to_json(self) -> dict:
+        return {"effect": self.effect, "parameter": self.parameter, "unit": self.unit, "nominal": self.nominal,
+                "limit": self.value, "realistic": list(self.realistic), "realistic_missable": self.missable(),
+                "inert": self.inert, "sizes": self.sizes.tolist(),
+                "removed": self.removed.tolist(), "z": self.z.tolist(), "detected": self.detected.tolist()}
+
+
+def _short(v: float) -> str:
+    return f"{v:.3g}"
+
+
+def _unit(unit: str) -> str:
+    return "" if unit == "1" else f" {unit}"
+
+
+def sizes(p: Parameter, control) -> np.ndarray:
+    """(GRID,) values of ``p`` from near nominal to ``LARGEST_FACTOR`` x its largest realistic
+    distance from nominal, towards its realistic range (+ for a signed one), within its bounds."""
+    nominal = p.nominal_for(control)
+    if p.signed:
+        direction, largest = 1.0, float(max(p.realistic))
+    else:
+        far = max(p.realistic, key=lambda x: abs(x - nominal))
+        direction, largest = float(np.sign(far - nominal)), abs(far - nominal)
+    steps = LARGEST_FACTOR * largest * 0.5 ** np.arange(GRID - 1, -1, -1)
+    return np.clip(nominal + direction * steps, p.lower, p.upper)
+
+
+def limits(problem: Problem, model: Model, rows: np.ndarray, residual: np.ndarray, floor_mse: float,
+           candidates: tuple[str, ...]) -> list[Limit]:
+    """The limit of every parameter with a realistic range of the ``candidates`` ``model`` does not
+    hold, on judge ``rows`` whose residuals under ``model`` are ``residual`` (N, C)."""
+    held = {t.name for t in model.effects}
+    out = []
+    for name in candidates:
+        if name in held:
+            continue
+        effect = get_effect(name)
+        for p in effect.parameters:
+            if p.realistic is not None:
+                out.append(_limit(problem, model, effect, p, rows, residual, floor_mse))
+    return out
+
+
+def _limit(problem: Problem, model: Model, effect: Effect, p: Parameter, rows: np.ndarray, residual: np.ndarray,
+           floor_mse: float) -> Limit:
+    nominal = p.nominal_for(problem.control)
+    values = sizes(p, problem.control)
+    removed, z, detected = _would_be(problem, model, effect, p, values, rows, residual, floor_mse)
+    value = None
+    if detected.any():
+        j = int(np.argmax(detected))
+        lo, hi = (values[j - 1], values[j]) if j else (nominal, values[0])
+        for _ in range(BISECTIONS if j else 0):  # halve the bracket in the log of the distance from nominal
+            mid = nominal + np.sign(hi - nominal) * np.sqrt(abs(lo - nominal) * abs(hi - nominal))
+            shown = _would_be(problem, model, effect, p, np.array([mid]), rows, residual, floor_mse)[2][0]
+            lo, hi = (lo, mid) if shown else (mid, hi)
+        value = float(hi)
+    return Limit(effect.name, p.name, p.unit, nominal, values, removed, z, detected, value, tuple(p.realistic))
+
+
+def _would_be(problem: Problem, model: Model, effect: Effect, p: Parameter, values: np.ndarray, rows: np.ndarray,
+              residual: np.ndarray, floor_mse: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """At each of ``values`` of ``p``: the share of the would-be error r + s a perfect fit removes,
+    its paired z and whether ``--auto`` would add it at one step (module docstring)."""
+    control = problem.control
+    configs = []
+    for v in values:
+        vals = effect.nominal(control)
+        vals[p.name] = np.full_like(vals[p.name], v) if p.per_joint else float(v)
+        configs.append(model.with_effect(effect, vals).sim_config(control))
+    k, n = len(configs), len(rows)
+    with_effect = problem.residual_of(configs, np.tile(rows, k), model_of_row=np.repeat(np.arange(k), n))
+    after = (residual ** 2).mean(1)  # a perfect fit leaves the final model's residual
+    removed, z, detected = np.zeros(k), np.zeros(k), np.zeros(k, dtype=bool)
+    for j in range(k):
+        would_be = 2.0 * residual - with_effect[j * n:(j + 1) * n]  # r + s, s = r - (r with the effect)
+        before = (np.where(np.isfinite(would_be), would_be, 10.0) ** 2).mean(1)  # blown up: error 10, as judged
+        mse_b, mse_a = float(before.mean()), float(after.mean())
+        removed[j] = 1.0 - mse_a / mse_b if mse_b > 0 else 0.0
+        z[j] = paired_z(before - after)
+        step = Judgement(mse_b, mse_a, removed[j], z[j], significant_gain(removed[j], z[j]), residual)
+        detected[j] = step.significant and not too_little(step, None, floor_mse)
+    return removed, z, detected
