@@ -373,7 +373,7 @@ def test_the_smallest_effect_a_log_shows_is_where_a_hidden_one_is_named(noisy_lo
     assert "could be missed" in terminal(replace(d, limits=[limit]))
     for factor, named in ((2.5, True), (0.3, False)):
         value = factor * limit.value
-        damping = lambda spec: [setattr(j, "damping", value) for j in spec.joints if j.name != "root"]  # noqa: E731
+        damping = lambda spec: [j.damping.__setitem__(0, value) for j in spec.joints if j.name != "root"]  # noqa: E731
         write_log(tmp_path / f"{factor}.csv", LogSpec(noise=1.0, seed=1, spec_edit=damping))
         path, _ = import_log(tmp_path / f"{factor}.csv", tmp_path / f"log{factor}", ImportConfig(50, 60.0, 1.5, 33.5))
         found = diagnose(load_measurements(path), Model.parse("mujoco"), cfg, automatic=True)
