@@ -253,7 +253,11 @@ def diagnosis_json() -> dict:
                         {"name": "armature", "explained": 0.1, "significant": False}],
             "added": [{"name": "joint_damping", "headline_before": 0.21, "headline_after": 0.01}],
             "data_checks": [{"check": "contacts", "channels": ["FR_contact"],
-                             "message": "FR_contact should be 0/1 flags (1: touching the ground) but reach 80"}]}
+                             "message": "FR_contact should be 0/1 flags (1: touching the ground) but reach 80"}],
+            "limits": [{"effect": "joint_friction", "parameter": "value", "unit": "N m", "limit": 0.25,
+                        "realistic_missable": "0.1..0.25", "inert": False},
+                       {"effect": "armature", "parameter": "value", "unit": "kg m^2", "limit": 0.002,
+                        "realistic_missable": "none", "inert": False}]}
 
 
 @pytest.fixture(scope="module")
@@ -340,6 +344,9 @@ def test_the_error_falls_when_the_hidden_effect_is_added(hidden):
     assert "verdict **effect**" in doc and "the error grows with joint speed" in doc
     assert "| 1 | joint_damping | 97% | yes |" in doc and f"{rms(nominal):.4f}" in doc
     assert "**Data checks**" in doc and "- FR_contact should be 0/1 flags" in doc
+    # --limits: what the log could miss, the effects whose whole realistic range it shows left out
+    assert "- joint_friction value: shown from 0.25 N m, realistic values it could miss: 0.1..0.25" in doc
+    assert "armature" not in doc.split("**What this log could miss**")[1]
 
 
 def test_an_imported_log_lacking_channels_is_compared_on_what_it_has(tmp_path):

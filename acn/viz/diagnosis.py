@@ -194,7 +194,8 @@ def model_markdown(name: str, model: Model, measurements: str, episode: int, sta
 
 
 def diagnosis_markdown(name: str, d: dict) -> str:
-    """The ``acn-diagnose --json`` part of the text panel: verdict, reason, where, ranking, added."""
+    """The ``acn-diagnose --json`` part of the text panel: verdict, reason, where, ranking, added and,
+    with ``--limits``, what the log rules out."""
     rows = [f"| {k} | {c['name']} | {c['explained']:.0%} | {'yes' if c.get('significant') else 'no'} |"
             for k, c in enumerate(d["ranking"], 1)]
     of = f" of {d['measurements']}" if isinstance(d.get("measurements"), str) else ""
@@ -210,6 +211,16 @@ def diagnosis_markdown(name: str, d: dict) -> str:
         lines += ["", "**Added:** " + "; ".join(
             f"{a['name']} (headline error {a.get('headline_before', float('nan')):.4f} -> "
             f"{a.get('headline_after', float('nan')):.4f})" for a in added)]
+    limits = [x for x in d.get("limits") or [] if isinstance(x, dict) and not x.get("inert")
+              and isinstance(x.get("limit"), (int, float, type(None)))
+              and x.get("realistic_missable") not in (None, "none")]
+    if limits:
+        unit = lambda x: "" if x.get("unit") in (None, "1") else f" {x['unit']}"  # noqa: E731
+        lines += ["", "**What this log could miss** (`--limits`: the smallest size `--auto` would name, optimistic; "
+                  "effects whose whole realistic range it shows left out):", *(
+                      f"- {x.get('effect')} {x.get('parameter')}: shown from "
+                      + (f"{x['limit']:.3g}{unit(x)}" if x["limit"] is not None else "nowhere in the range scanned")
+                      + f", realistic values it could miss: {x['realistic_missable']}" for x in limits)]
     return "\n".join(lines)
 
 
