@@ -64,7 +64,11 @@ With ``--pairs``, logs with TWO hidden effects instead (``--auto``), one line ea
   as the hidden ones while the PD is unsaturated, which the report says under them (``pd_gains``
   for ``motor_strength`` + ``joint_damping``, or the reverse: ``same_physics``; ``both=same``);
 - ``pairs_within_15pct``: of the parameters of those, within 15 % of the truth (in the hidden
-  effects' words).
+  effects' words);
+- ``pairs_missed_short_of_limit``: of the hidden effects missed, those whose true value lies short of
+  the log's limit beside the final model (``acn-diagnose --limits``: the smallest size ``--auto`` would
+  name); each missed effect's cell says ``short of`` or ``beyond`` its limit: one beyond it was
+  missed although the log shows it (an effect added stood in for it).
 
 With ``--draws K0:K1``, fresh pairs drawn at random instead (``draw``; seeds ``--seed0`` + k, one
 per draw k): two different effects of ``DRAWN``, each at a value uniform in the catalogue's
@@ -93,6 +97,7 @@ from robot_log import LogSpec, welded_payload, write_log  # noqa: E402
 from acn.datasets.importer import ImportConfig, import_log  # noqa: E402
 from acn.datasets.measurements import load_measurements  # noqa: E402
 from acn.models.diagnose import DiagnoseConfig, diagnose  # noqa: E402
+from acn.models.diagnose.pipeline import rule_out  # noqa: E402
 from acn.toolkit.backends import IMU_ACC_KINDS  # noqa: E402
 from acn.toolkit.effects import CATALOGUE, Model  # noqa: E402
 from acn.toolkit.effects.catalogue import pd_gains_as_strength_damping, strength_damping_as_pd_gains  # noqa: E402
@@ -343,7 +348,7 @@ def same_physics(fitted: dict, hidden: set[str], kd: float) -> dict | None:
 def diagnose_pair(args, name: str, stem: str, over: dict, truth: list, seed: int, root: Path, tally: dict) -> None:
     """Write (``root/stem.csv``), import (``root/stem``) and diagnose (``--auto``) one log with two
     hidden effects; print its line and count into ``tally`` ({"named": [right, of], "same": [right or the
-    same physics, of], "within": [right, of]})."""
+    same physics, of], "within": [right, of], "short": [missed short of the log's limit, missed]})."""
     write_log(root / f"{stem}.csv", log_spec(args, seed, over))
     path, _ = import_log(root / f"{stem}.csv", root / stem, import_config(args))
     t = time.perf_counter()
@@ -367,7 +372,12 @@ def diagnose_pair(args, name: str, stem: str, over: dict, truth: list, seed: int
             tally["within"][1] += 1
             cells.append(f"{effect}.{key}={value:.4g} (true {true:.4g})")
         else:
-            cells.append(f"{effect} missed (true {key}={true:.4g})")
+            (limit,) = [x for x in rule_out(d, (effect,)) if x.parameter == key]
+            short = limit.value is None or abs(true - limit.nominal) < abs(limit.value - limit.nominal)
+            tally["short"][0] += short
+            tally["short"][1] += 1
+            cells.append(f"{effect} missed (true {key}={true:.4g}, {'short of' if short else 'beyond'} its limit "
+                         f"{limit.describe()})")
     said = "yes" if both else "same" if reading is not None else "no"
     also = (" as " if reading is not None else " also ") + " ".join(extra) if extra else ""
     aside = f" set_aside={sorted(d.set_aside)}" if d.set_aside else ""
@@ -377,7 +387,7 @@ def diagnose_pair(args, name: str, stem: str, over: dict, truth: list, seed: int
 
 def pairs(args, root: Path) -> None:
     """The ``PAIRS`` cases, or the ``--draws``, one line each, then the totals."""
-    tally = {"named": [0, 0], "same": [0, 0], "within": [0, 0]}
+    tally = {"named": [0, 0], "same": [0, 0], "within": [0, 0], "short": [0, 0]}
     if args.draws:
         for k in range(*args.draws):
             name, over, truth = draw(args.seed0 + k)
@@ -393,6 +403,7 @@ def pairs(args, root: Path) -> None:
     print(f"pairs_both_named={tally['named'][0]}/{tally['named'][1]}")
     print(f"pairs_named_or_same_physics={tally['same'][0]}/{tally['same'][1]}")
     print(f"pairs_within_15pct={tally['within'][0]}/{tally['within'][1]}")
+    print(f"pairs_missed_short_of_limit={tally['short'][0]}/{tally['short'][1]}")
 
 
 def _draws(text: str) -> tuple[int, int]:
