@@ -340,17 +340,18 @@ def terminal(d: Diagnosis) -> str:
                 for c in d.chains]
     out += ["", f"verdict: {d.verdict} ({d.reason})"]
     if d.limits:
-        out += ["", LIMITS, _table(["effect", "parameter", "shown from", "realistic", "could be missed"],
-                                   [_limit_row(x) for x in d.limits if not x.inert])]
+        out += ["", f"what this log rules out: {LIMITS}",
+                _table(["effect", "parameter", "shown from", "realistic", "could be missed"],
+                       [_limit_row(x) for x in d.limits if not x.inert])]
     if d.closed_loop:
         out += ["", closed_loop_table(d.closed_loop)]
     return "\n".join(out)
 
 
-LIMITS = ("what this log rules out: the smallest size of each effect not in the final model that --auto would "
-          "name beside it, one step ahead (optimistic: a fit that finds it exactly, nothing standing in for it, no "
-          "noise bias; every joint alike, the effect's other parameters nominal; a parameter that alone changes "
-          "nothing, such as a payload's centre of mass, is left out)")
+LIMITS = ("the smallest size of each effect not in the final model that --auto would name beside it, one step "
+          "ahead (optimistic: a fit that finds it exactly, nothing standing in for it, no noise bias; every joint "
+          "alike, the effect's other parameters nominal; a parameter that alone changes nothing, such as a payload's "
+          "centre of mass, is left out)")  # under the heading "what this log rules out"
 
 
 def _limit_row(x) -> list[str]:
@@ -466,7 +467,7 @@ def _limits_html(d: Diagnosis) -> str:
         return ""
     rows = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in _limit_row(x)) + "</tr>"
                    for x in d.limits if not x.inert)
-    return (f"<h2>What this log rules out</h2><p>{html.escape(LIMITS[len('what this log rules out: '):])}.</p>"
+    return (f"<h2>What this log rules out</h2><p>{html.escape(LIMITS[0].upper() + LIMITS[1:])}.</p>"
             "<table><tr><th>effect</th><th>parameter</th><th>shown from</th><th>realistic</th><th>could be missed</th>"
             f"</tr>{rows}</table>")
 
