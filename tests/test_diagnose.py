@@ -149,6 +149,27 @@ def test_a_candidate_whose_final_fit_is_set_aside_gives_way_to_the_runner_up(tmp
     assert "--auto: refused for the test" in write_html(d, tmp_path / "report.html").read_text()
 
 
+def test_an_implausible_finer_fit_gives_way_to_the_coarser_one_it_beat(tmp_path, monkeypatch):
+    # Damping per joint type beats one value for every joint on held-out rows. Where its final fit
+    # is implausible (fresh draw k 61: a hip damping the pace gait hardly moves ran to the bound),
+    # the shared fit is made final instead of setting the effect aside whole. The real rule is
+    # replaced by one that refuses the per-type fit, so the path runs on every machine.
+    from acn.models.diagnose import add
+
+    data = measured(tmp_path, {"joint_damping": {"value": [0.1, 0.8, 0.4] * 4}})
+    cfg = replace(FAST, finest="type")
+    problem = prepare(data, Model.parse("mujoco"), cfg)
+    rows = problem.sample(problem.held_rows, cfg.judge_rows, salt=4)
+    residual = problem.residual_of(Model.parse("mujoco").sim_config(problem.control), rows)
+    fit, _ = add.choose_fit(problem, Model.parse("mujoco"), "joint_damping", cfg, rows, residual)
+    assert fit.granularity == "type" and not add.implausible(fit), fit.values
+    real = add.implausible
+    monkeypatch.setattr(add, "implausible", lambda f: "refused for the test" if f.granularity == "type" else real(f))
+    fit, judgement = add.choose_fit(problem, Model.parse("mujoco"), "joint_damping", cfg, rows, residual)
+    assert fit.granularity == "shared" and judgement.significant, fit.values
+    assert 0.1 < float(np.mean(fit.values["value"])) < 0.8, fit.values
+
+
 def test_a_richer_effect_gives_way_to_a_simpler_one_beside_the_others(tmp_path):
     """Strength 0.85 and friction 0.2 hidden; both PD gains added first (as greedy adding can on
     noisy logs), then friction. Judged again beside friction, the gains give way to the simpler
