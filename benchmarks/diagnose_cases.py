@@ -373,7 +373,7 @@ def diagnose_pair(args, name: str, stem: str, over: dict, truth: list, seed: int
             cells.append(f"{effect}.{key}={value:.4g} (true {true:.4g})")
         else:
             (limit,) = [x for x in rule_out(d, (effect,)) if x.parameter == key]
-            short = limit.value is None or abs(true - limit.nominal) < abs(limit.value - limit.nominal)
+            short = not limit.shows(true)
             tally["short"][0] += short
             tally["short"][1] += 1
             cells.append(f"{effect} missed (true {key}={true:.4g}, {'short of' if short else 'beyond'} its limit "

@@ -72,14 +72,18 @@ class Limit:
     def realistic_text(self) -> str:
         return f"{_short(self.realistic[0])}..{_short(self.realistic[1])}{_unit(self.unit)}"
 
+    def shows(self, value: float) -> bool:
+        """Whether the log would show the effect at ``value``: at the limit or further from nominal."""
+        return self.value is not None and abs(value - self.nominal) >= abs(self.value - self.nominal)
+
     def missable(self) -> str:
         """The part of the realistic range (in distance from nominal) below the limit: what the log could miss."""
         near, far = sorted(self.realistic, key=lambda x: abs(x - self.nominal))
         if self.inert:
             return ""
-        if self.value is None or abs(self.value - self.nominal) > abs(far - self.nominal):
+        if not self.shows(far):
             return "all of it"
-        if abs(self.value - self.nominal) <= abs(near - self.nominal):
+        if self.shows(near):
             return "none"
         return "..".join(_short(v) for v in sorted((near, self.value)))
 
