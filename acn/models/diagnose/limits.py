@@ -66,8 +66,10 @@ class Limit:
             return "no effect alone (its other parameters nominal)"
         if self.value is None:
             return f"not shown up to {_short(self.sizes[-1])}{_unit(self.unit)}"
-        at_most = "<= " if self.detected[0] else ""  # shown at the smallest size scanned: perhaps below it too
-        return f"{at_most}{_short(self.value)}{_unit(self.unit)}"
+        # shown at the smallest size scanned: perhaps nearer nominal too (below it, or above it for a
+        # parameter scanned downwards, such as a strength or a torque limit)
+        nearer = ("<= " if self.value > self.nominal else ">= ") if self.detected[0] else ""
+        return f"{nearer}{_short(self.value)}{_unit(self.unit)}"
 
     def realistic_text(self) -> str:
         return f"{_short(self.realistic[0])}..{_short(self.realistic[1])}{_unit(self.unit)}"
