@@ -670,6 +670,9 @@ def diagnose_parser() -> argparse.ArgumentParser:
     p.add_argument("--list-effects", action="store_true", help="print the catalogue of effects and exit")
     p.add_argument("--limits", action="store_true",
                    help="then the smallest size of each effect not named that this log would show: what it rules out")
+    p.add_argument("--limits-per-joint", action="store_true",
+                   help="--limits, and each per-joint effect also on one joint alone (a worn gearbox, a weak motor): "
+                   "the size it shows at on the joint the log shows least")
     p.add_argument("--closed-loop", type=_nonneg_int, default=0, metavar="N",
                    help="then re-run the measured robot (an acn-collect dataset) from N held-out initial states beside "
                    "the model as given, with --corrector and with the added effects: divergence, eps_transfer, falls")
@@ -715,6 +718,7 @@ def diagnose_main(argv: list[str] | None = None) -> int:
             raise UserError(f"measurement dataset {args.measured} does not exist")
         if args.corrector is not None and not args.closed_loop:
             raise UserError("--corrector is run in closed loop: give --closed-loop N as well")
+        args.limits = args.limits or args.limits_per_joint
         if args.limits and args.explain_corrector is not None:
             raise UserError("--limits and --explain-corrector are separate questions: ask one at a time")
         if args.closed_loop and args.explain_corrector is not None:
@@ -753,7 +757,7 @@ def diagnose_main(argv: list[str] | None = None) -> int:
             if args.limits:
                 from acn.models.diagnose.pipeline import rule_out
 
-                result.limits = rule_out(result, cfg.candidates, progress=say)
+                result.limits = rule_out(result, cfg.candidates, one_joint=args.limits_per_joint, progress=say)
             if args.closed_loop:
                 from acn.models.diagnose.transfer import closed_loop_models
 

@@ -407,6 +407,41 @@ def test_the_smallest_effect_a_log_shows_is_where_a_hidden_one_is_named(noisy_lo
     assert np.all(signed > 0) and np.isclose(signed[-1], 0.3), signed
 
 
+@NOISY_LOGS
+def test_one_joint_alone_is_named_where_its_limit_says_and_not_short_of_it(noisy_logs, tmp_path):
+    """``--limits-per-joint`` on the noisy log without effects: joint damping on one joint alone.
+    The log shows it far less than on every joint alike (one joint's fit must remove 15 % of the
+    error where the floor calls it noise); FR_calf's damping is written at twice the grid size
+    first shown there (named, per joint, on FR_calf) and at the size below (not named)."""
+    from acn.datasets.importer import ImportConfig, import_log
+    from acn.models.diagnose.pipeline import rule_out
+    from acn.toolkit.robot import URDF_JOINT
+
+    cfg = replace(FAST, candidates=("joint_damping", "motor_strength", "joint_friction", "armature"))
+    d = diagnose(load_measurements(noisy_logs["nominal"]), Model.parse("mujoco"), cfg, automatic=True)
+    (limit,) = rule_out(d, ("joint_damping",), one_joint=True)
+    one, by_joint = limit.one_joint, limit.to_json()["by_joint"]
+    assert one is not None and one.joint in JOINT_NAMES and limit.value is not None, limit.to_json()
+    shown = [v for v in by_joint.values() if v is not None]
+    assert min(shown) > limit.value  # no joint alone shows as little as every joint alike
+    # the joint it shows least: unshown where a joint is, else bisected below the largest grid size
+    assert (one.value is None) == (len(shown) < len(JOINT_NAMES)), by_joint
+    assert one.value is None or (one.shows(max(shown)) and by_joint[one.joint] == max(shown)), one.to_json()
+    assert "one joint alone" in terminal(replace(d, limits=[limit]))
+    first = by_joint["FR_calf"]
+    below = limit.sizes[list(limit.sizes).index(first) - 1]
+    for value, named in ((2.0 * first, True), (below, False)):
+        damping = lambda spec: spec.joint(URDF_JOINT["FR_calf"]).damping.__setitem__(0, value)  # noqa: E731
+        write_log(tmp_path / f"{value}.csv", LogSpec(noise=1.0, seed=1, spec_edit=damping))
+        path, _ = import_log(tmp_path / f"{value}.csv", tmp_path / f"log{value}", ImportConfig(50, 60.0, 1.5, 33.5))
+        found = diagnose(load_measurements(path), Model.parse("mujoco"), cfg, automatic=True)
+        assert (found.verdict == "effect") == named, (value, found.reason)
+        if named:
+            (added,) = found.added
+            fitted = added.fit.values["value"]
+            assert added.name == "joint_damping" and np.argmax(fitted) == JOINT_NAMES.index("FR_calf"), fitted
+
+
 def test_a_closed_loop_controllers_noisy_log_finds_the_damping(tmp_path):
     """A controller that levels the trunk on its measured, noisy roll and pitch (the pace gait,
     which falls open loop, stays upright): the log's actions carry the noise of the states the
@@ -877,6 +912,7 @@ def test_a_log_that_breaks_a_convention_is_diagnosed_with_its_data_checks(tmp_pa
     (["--corrector", "c"], "give --closed-loop"),
     (["--finest", "wheel"], "finest must be one of shared, type, leg, joint"),
     (["--step-seconds", "-0.01"], "step_seconds must be a positive number"),
+    (["--limits-per-joint", "--explain-corrector", "c"], "separate questions"),
 ])
 def test_cli_bad_input_is_one_line(tmp_path, capsys, args, message):
     from acn.cli import diagnose_main

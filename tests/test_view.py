@@ -255,7 +255,9 @@ def diagnosis_json() -> dict:
             "data_checks": [{"check": "contacts", "channels": ["FR_contact"],
                              "message": "FR_contact should be 0/1 flags (1: touching the ground) but reach 80"}],
             "limits": [{"effect": "joint_friction", "parameter": "value", "unit": "N m", "limit": 0.25,
-                        "realistic_missable": "0.1..0.25", "inert": False},
+                        "realistic_missable": "0.1..0.25", "inert": False,
+                        "one_joint": {"effect": "joint_friction", "parameter": "value", "unit": "N m", "limit": 0.9,
+                                      "realistic_missable": "all of it", "inert": False, "joint": "FR_hip"}},
                        {"effect": "armature", "parameter": "value", "unit": "kg m^2", "limit": 0.002,
                         "realistic_missable": "none", "inert": False}]}
 
@@ -347,6 +349,8 @@ def test_the_error_falls_when_the_hidden_effect_is_added(hidden):
     # --limits: what the log could miss, the effects whose whole realistic range it shows left out
     assert "- joint_friction value: shown from 0.25 N m, realistic values it could miss: 0.1..0.25" in doc
     assert "armature" not in doc.split("**What this log could miss**")[1]
+    # --limits-per-joint: on the one joint the log shows least
+    assert "- joint_friction value on FR_hip: shown from 0.9 N m, realistic values it could miss: all of it" in doc
 
 
 def test_an_imported_log_lacking_channels_is_compared_on_what_it_has(tmp_path):

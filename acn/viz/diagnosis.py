@@ -211,17 +211,30 @@ def diagnosis_markdown(name: str, d: dict) -> str:
         lines += ["", "**Added:** " + "; ".join(
             f"{a['name']} (headline error {a.get('headline_before', float('nan')):.4f} -> "
             f"{a.get('headline_after', float('nan')):.4f})" for a in added)]
-    limits = [x for x in d.get("limits") or [] if isinstance(x, dict) and not x.get("inert")
-              and isinstance(x.get("limit"), (int, float, type(None)))
-              and x.get("realistic_missable") not in (None, "none")]
+    every = [x for x in d.get("limits") or [] if isinstance(x, dict)]
+    limits = _missable(every)
     if limits:
-        unit = lambda x: "" if x.get("unit") in (None, "1") else f" {x['unit']}"  # noqa: E731
         lines += ["", "**What this log could miss** (`--limits`: the smallest size `--auto` would name, optimistic; "
-                  "effects whose whole realistic range it shows left out):", *(
-                      f"- {x.get('effect')} {x.get('parameter')}: shown from "
-                      + (f"{x['limit']:.3g}{unit(x)}" if x["limit"] is not None else "nowhere in the range scanned")
-                      + f", realistic values it could miss: {x['realistic_missable']}" for x in limits)]
+                  "effects whose whole realistic range it shows left out):", *map(_limit_line, limits)]
+    one = _missable([x["one_joint"] for x in every if isinstance(x.get("one_joint"), dict)])
+    if one:
+        lines += ["", "**On one joint alone it could miss** (`--limits-per-joint`: on the joint it shows least):",
+                  *map(_limit_line, one)]
     return "\n".join(lines)
+
+
+def _missable(limits: list[dict]) -> list[dict]:
+    """The ``--limits`` entries with a realistic range the log could miss (read defensively)."""
+    return [x for x in limits if not x.get("inert") and isinstance(x.get("limit"), (int, float, type(None)))
+            and x.get("realistic_missable") not in (None, "none")]
+
+
+def _limit_line(x: dict) -> str:
+    unit = "" if x.get("unit") in (None, "1") else f" {x['unit']}"
+    at = f" on {x['joint']}" if isinstance(x.get("joint"), str) else ""
+    shown = f"{x['limit']:.3g}{unit}" if x["limit"] is not None else "nowhere in the range scanned"
+    return (f"- {x.get('effect')} {x.get('parameter')}{at}: shown from {shown}, "
+            f"realistic values it could miss: {x['realistic_missable']}")
 
 
 def add_diagnosis_view(model_spec: str | Path, frames: RecordedFrames, episodes: list[EpisodeView],

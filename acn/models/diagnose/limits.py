@@ -24,6 +24,18 @@ stands in for it, and that noise in the measured start states does not bias its 
 a larger effect). An effect that the log shows only over long predictions (a torque limit
 reached on few steps, ``rank.uneven``) can be found below its one-step limit. A signed
 parameter (an offset) is scanned in the + direction only.
+
+One joint alone (``one_joint=True``, ``--limits-per-joint``): a worn gearbox or a weak motor sits
+in one joint. Each per-joint parameter is also set on one joint at a time, the other eleven
+nominal, at the same sizes; the joint whose limit is largest (the one the log shows least, by
+the grid, ties to the smallest share removed) is bisected, and its scan is ``Limit.one_joint``.
+That limit holds for every joint: at or beyond it, one joint's effect is shown wherever it
+sits. Detected by the same rules, and where the noise floor calls the log's error noise, the
+perfect fit must also remove ``STRUCTURED_SHARE`` of it: ``rank.finer_look``'s rule for a fit
+per joint there. The diagnosis looks at one joint alone in its first ranking (where no effect
+explains most of the error) and at an effect already added; beside added effects a new one is
+ranked with one value for every joint first, so there a limit per joint is a bound it may not
+reach.
 """
 
 from __future__ import annotations
@@ -34,8 +46,9 @@ import numpy as np
 
 from acn.models.diagnose.add import too_little
 from acn.models.diagnose.problem import Problem
-from acn.models.diagnose.rank import LARGEST_FACTOR, Judgement, paired_z, significant_gain
+from acn.models.diagnose.rank import LARGEST_FACTOR, STRUCTURED_SHARE, Judgement, paired_z, significant_gain
 from acn.toolkit.effects import Effect, Model, Parameter, get_effect
+from acn.toolkit.state import JOINT_NAMES
 
 GRID = 6         # sizes scanned per parameter: LARGEST_FACTOR x the largest realistic magnitude, halved GRID - 1 times
 BISECTIONS = 2   # halvings of the bracket around the limit (in the log of the distance: within a factor 2^(1/4))
@@ -55,11 +68,18 @@ class Limit:
     detected: np.ndarray   # (GRID,) whether ``--auto`` would add it there (one step)
     value: float | None    # the limit (a value of the parameter); None where no size scanned is detected
     realistic: tuple[float, float]
+    joint: str = ""        # the one joint the effect was set on ("": every joint alike)
+    one_joint: Limit | None = None  # every joint alike: the scan on the joint the log shows least (module docstring)
+    by_joint: np.ndarray | None = None  # (12,) every joint alike: the smallest grid size shown on each joint alone
+    # (nan: not up to the largest), in JOINT_NAMES order
 
     @property
     def inert(self) -> bool:
-        """Whether the parameter alone (the effect's others nominal) changes no prediction."""
-        return not np.any(self.removed > 0)
+        """Whether the parameter alone (the effect's others nominal) changes no prediction (a payload's
+        centre of mass without its mass). Exactly: an effect the log does not exercise changes its
+        predictions by rounding (the torque-speed slope on a trot: -7e-11 of the error, and +1e-9
+        on a second fit of the same log) and is reported as not shown."""
+        return bool(np.all(self.removed == 0.0))
 
     def describe(self) -> str:
         if self.inert:
@@ -90,10 +110,16 @@ class Limit:
         return "..".join(_short(v) for v in sorted((near, self.value)))
 
     def to_json(self) -> dict:
-        return {"effect": self.effect, "parameter": self.parameter, "unit": self.unit, "nominal": self.nominal,
-                "limit": self.value, "realistic": list(self.realistic), "realistic_missable": self.missable(),
-                "inert": self.inert, "sizes": self.sizes.tolist(),
-                "removed": self.removed.tolist(), "z": self.z.tolist(), "detected": self.detected.tolist()}
+        out = {"effect": self.effect, "parameter": self.parameter, "unit": self.unit, "nominal": self.nominal,
+               "limit": self.value, "realistic": list(self.realistic), "realistic_missable": self.missable(),
+               "inert": self.inert, "sizes": self.sizes.tolist(),
+               "removed": self.removed.tolist(), "z": self.z.tolist(), "detected": self.detected.tolist()}
+        if self.joint:
+            out["joint"] = self.joint
+        if self.one_joint is not None:
+            out["one_joint"] = self.one_joint.to_json()
+            out["by_joint"] = {n: None if np.isnan(v) else float(v) for n, v in zip(JOINT_NAMES, self.by_joint)}
+        return out
 
 
 def _short(v: float) -> str:
@@ -117,10 +143,26 @@ def sizes(p: Parameter, control) -> np.ndarray:
     return np.clip(nominal + direction * steps, p.lower, p.upper)
 
 
+@dataclass
+class _Scan:
+    """What ``_would_be`` needs besides the sizes: the log's judge rows and their residuals under
+    the final model, its noise floor, and the share of the error a fit on one joint must remove."""
+
+    problem: Problem
+    model: Model
+    rows: np.ndarray
+    residual: np.ndarray   # (N, C)
+    floor_mse: float
+    one_joint_removes: float
+
+
 def limits(problem: Problem, model: Model, rows: np.ndarray, residual: np.ndarray, floor_mse: float,
-           candidates: tuple[str, ...]) -> list[Limit]:
+           candidates: tuple[str, ...], one_joint: bool = False, floor_says_noise: bool = False) -> list[Limit]:
     """The limit of every parameter with a realistic range of the ``candidates`` ``model`` does not
-    hold, on judge ``rows`` whose residuals under ``model`` are ``residual`` (N, C)."""
+    hold, on judge ``rows`` whose residuals under ``model`` are ``residual`` (N, C). ``one_joint``:
+    per-joint parameters are also scanned on one joint at a time (module docstring), where a fit
+    must remove ``STRUCTURED_SHARE`` of the error if ``floor_says_noise``."""
+    scan = _Scan(problem, model, rows, residual, floor_mse, STRUCTURED_SHARE if floor_says_noise else 0.0)
     held = {t.name for t in model.effects}
     out = []
     for name in candidates:
@@ -129,40 +171,71 @@ def limits(problem: Problem, model: Model, rows: np.ndarray, residual: np.ndarra
         effect = get_effect(name)
         for p in effect.parameters:
             if p.realistic is not None:
-                out.append(_limit(problem, model, effect, p, rows, residual, floor_mse))
+                limit = _limit(scan, effect, p)
+                if one_joint and p.per_joint and not limit.inert:
+                    limit.one_joint, limit.by_joint = _least_shown_joint(scan, effect, p)
+                out.append(limit)
     return out
 
 
-def _limit(problem: Problem, model: Model, effect: Effect, p: Parameter, rows: np.ndarray, residual: np.ndarray,
-           floor_mse: float) -> Limit:
-    nominal = p.nominal_for(problem.control)
-    values = sizes(p, problem.control)
-    removed, z, detected = _would_be(problem, model, effect, p, values, rows, residual, floor_mse)
+def _limit(scan: _Scan, effect: Effect, p: Parameter, joint: int | None = None, grid=None) -> Limit:
+    """The limit of ``p`` on every joint alike, or on ``joint`` alone; ``grid``: its scan at
+    ``sizes`` where already simulated (removed, z, detected)."""
+    nominal = p.nominal_for(scan.problem.control)
+    values = sizes(p, scan.problem.control)
+    removed, z, detected = grid if grid is not None else _would_be(scan, effect, p, values, joint)
     value = None
     if detected.any():
         j = int(np.argmax(detected))
         lo, hi = (values[j - 1], values[j]) if j else (nominal, values[0])
         for _ in range(BISECTIONS if j else 0):  # halve the bracket in the log of the distance from nominal
             mid = nominal + np.sign(hi - nominal) * np.sqrt(abs(lo - nominal) * abs(hi - nominal))
-            shown = _would_be(problem, model, effect, p, np.array([mid]), rows, residual, floor_mse)[2][0]
+            shown = _would_be(scan, effect, p, np.array([mid]), joint)[2][0]
             lo, hi = (lo, mid) if shown else (mid, hi)
         value = float(hi)
-    return Limit(effect.name, p.name, p.unit, nominal, values, removed, z, detected, value, tuple(p.realistic))
+    return Limit(effect.name, p.name, p.unit, nominal, values, removed, z, detected, value, tuple(p.realistic),
+                 joint=JOINT_NAMES[joint] if joint is not None else "")
 
 
-def _would_be(problem: Problem, model: Model, effect: Effect, p: Parameter, values: np.ndarray, rows: np.ndarray,
-              residual: np.ndarray, floor_mse: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """At each of ``values`` of ``p``: the share of the would-be error r + s a perfect fit removes,
-    its paired z and whether ``--auto`` would add it at one step (module docstring)."""
-    control = problem.control
+def _least_shown_joint(scan: _Scan, effect: Effect, p: Parameter) -> tuple[Limit, np.ndarray]:
+    """``p`` on each joint alone at the grid's sizes (one batch): the limit of the joint the log
+    shows least (the latest first size shown, ties to the smallest share removed there) and each
+    joint's smallest grid size shown (nan: none)."""
+    values = sizes(p, scan.problem.control)
+    k, n = len(values), len(JOINT_NAMES)
+    removed, z, detected = (x.reshape(n, k) for x in _would_be(scan, effect, p, np.tile(values, n),
+                                                                np.repeat(np.arange(n), k)))
+    first = np.where(detected.any(1), detected.argmax(1), k)
+    by_joint = np.where(first < k, values[np.minimum(first, k - 1)], np.nan)
+    at = np.minimum(first, k - 1)
+    least = max(range(n), key=lambda i: (first[i], -removed[i, at[i]]))
+    return _limit(scan, effect, p, least, (removed[least], z[least], detected[least])), by_joint
+
+
+def _would_be(scan: _Scan, effect: Effect, p: Parameter, values: np.ndarray,
+              joints: np.ndarray | int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """At each of ``values`` of ``p`` (on every joint, or on ``joints``: one joint index per value,
+    or one for all): the share of the would-be error r + s a perfect fit removes, its paired z and
+    whether ``--auto`` would add it at one step (module docstring)."""
+    control = scan.problem.control
+    if joints is not None:
+        joints = np.broadcast_to(joints, values.shape)
     configs = []
-    for v in values:
+    for i, v in enumerate(values):
         vals = effect.nominal(control)
-        vals[p.name] = np.full_like(vals[p.name], v) if p.per_joint else float(v)
-        configs.append(model.with_effect(effect, vals).sim_config(control))
-    k, n = len(configs), len(rows)
-    with_effect = problem.residual_of(configs, np.tile(rows, k), model_of_row=np.repeat(np.arange(k), n))
+        if not p.per_joint:
+            vals[p.name] = float(v)
+        elif joints is None:
+            vals[p.name] = np.full_like(vals[p.name], v)
+        else:
+            vals[p.name] = np.array(vals[p.name], dtype=float)
+            vals[p.name][joints[i]] = v
+        configs.append(scan.model.with_effect(effect, vals).sim_config(control))
+    k, rows, residual = len(configs), scan.rows, scan.residual
+    n = len(rows)
+    with_effect = scan.problem.residual_of(configs, np.tile(rows, k), model_of_row=np.repeat(np.arange(k), n))
     after = (residual ** 2).mean(1)  # a perfect fit leaves the final model's residual
+    least_removed = scan.one_joint_removes if joints is not None else 0.0
     removed, z, detected = np.zeros(k), np.zeros(k), np.zeros(k, dtype=bool)
     for j in range(k):
         would_be = 2.0 * residual - with_effect[j * n:(j + 1) * n]  # r + s, s = r - (r with the effect)
@@ -171,5 +244,5 @@ def _would_be(problem: Problem, model: Model, effect: Effect, p: Parameter, valu
         removed[j] = 1.0 - mse_a / mse_b if mse_b > 0 else 0.0
         z[j] = paired_z(before - after)
         step = Judgement(mse_b, mse_a, removed[j], z[j], significant_gain(removed[j], z[j]), residual)
-        detected[j] = step.significant and not too_little(step, None, floor_mse)
+        detected[j] = step.significant and not too_little(step, None, scan.floor_mse) and removed[j] >= least_removed
     return removed, z, detected

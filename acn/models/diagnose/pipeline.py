@@ -307,15 +307,16 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
                      data_checks=findings, chains=chains, set_aside=set_aside, accelerometer=accelerometer)
 
 
-def rule_out(d: Diagnosis, candidates: tuple[str, ...], progress=None) -> list[Limit]:
+def rule_out(d: Diagnosis, candidates: tuple[str, ...], one_joint: bool = False, progress=None) -> list[Limit]:
     """What the log rules out beside the final model: the smallest size of each of the ``candidates``
-    not in it that the diagnosis would have named (``acn.models.diagnose.limits``)."""
+    not in it that the diagnosis would have named (``acn.models.diagnose.limits``); ``one_joint``:
+    also on one joint alone, the joint the log shows least."""
     if progress:
-        progress("the smallest effects this log shows", None)
+        progress("the smallest effects this log shows" + (", also on one joint alone" if one_joint else ""), None)
     model = d.final.model
     residual = d.problem.residual_of(model.sim_config(d.problem.control), d.judge_rows)
     return limits(d.problem, model, d.judge_rows, np.where(np.isfinite(residual), residual, 10.0), d.floor_mse,
-                  candidates)
+                  candidates, one_joint=one_joint, floor_says_noise=d.structured_share < STRUCTURED_SHARE)
 
 
 def explain_corrector(data: Measurements, model: Model, corrector_dir, cfg: DiagnoseConfig | None = None,

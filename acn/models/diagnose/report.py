@@ -54,7 +54,9 @@ JSON keys (the machine-readable contract):
   ``nominal``, ``limit`` (the smallest value ``--auto`` would name beside the final model; null:
   none scanned), ``realistic``, ``realistic_missable`` (the part of the realistic range below the
   limit), ``inert`` (alone, the effect's other parameters nominal, it changes nothing), and the scan:
-  ``sizes``, ``removed``, ``z``, ``detected``.
+  ``sizes``, ``removed``, ``z``, ``detected``; with ``--limits-per-joint``, a per-joint parameter
+  also has ``one_joint`` (the same keys, and ``joint``: the scan on the one joint the log shows
+  least) and ``by_joint`` (joint name -> the smallest size scanned it is shown at alone, null: none).
 """
 
 from __future__ import annotations
@@ -340,9 +342,9 @@ def terminal(d: Diagnosis) -> str:
                 for c in d.chains]
     out += ["", f"verdict: {d.verdict} ({d.reason})"]
     if d.limits:
-        out += ["", f"what this log rules out: {LIMITS}",
-                _table(["effect", "parameter", "shown from", "realistic", "could be missed"],
-                       [_limit_row(x) for x in d.limits if not x.inert])]
+        one = _one_joint(d.limits)
+        out += ["", f"what this log rules out: {LIMITS}" + (f"; {ONE_JOINT}" if one else ""),
+                _table(_limit_header(one), [_limit_row(x, one) for x in d.limits if not x.inert])]
     if d.closed_loop:
         out += ["", closed_loop_table(d.closed_loop)]
     return "\n".join(out)
@@ -354,8 +356,25 @@ LIMITS = ("the smallest size of each effect not in the final model that --auto w
           "centre of mass, is left out)")  # under the heading "what this log rules out"
 
 
-def _limit_row(x) -> list[str]:
-    return [x.effect, x.parameter, x.describe(), x.realistic_text(), x.missable()]
+ONE_JOINT = ("one joint alone: the same on one joint, the other eleven nominal, on the joint the log shows least "
+             "(shown at or beyond it on any joint)")  # with --limits-per-joint
+
+
+def _one_joint(limits) -> bool:
+    return any(x.one_joint is not None for x in limits)
+
+
+def _limit_header(one_joint: bool) -> list[str]:
+    return (["effect", "parameter", "shown from", "realistic", "could be missed"]
+            + (["one joint alone: shown from", "could be missed"] if one_joint else []))
+
+
+def _limit_row(x, one_joint: bool = False) -> list[str]:
+    row = [x.effect, x.parameter, x.describe(), x.realistic_text(), x.missable()]
+    if one_joint:
+        j = x.one_joint
+        row += [f"{j.describe()} ({j.joint})", j.missable()] if j is not None else ["", ""]
+    return row
 
 
 # ----- HTML -----------------------------------------------------------------------------------
@@ -465,11 +484,13 @@ td,th{{border:1px solid #ccc;padding:4px 8px}}</style></head><body>
 def _limits_html(d: Diagnosis) -> str:
     if not d.limits:
         return ""
-    rows = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in _limit_row(x)) + "</tr>"
+    one = _one_joint(d.limits)
+    rows = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in _limit_row(x, one)) + "</tr>"
                    for x in d.limits if not x.inert)
-    return (f"<h2>What this log rules out</h2><p>{html.escape(LIMITS[0].upper() + LIMITS[1:])}.</p>"
-            "<table><tr><th>effect</th><th>parameter</th><th>shown from</th><th>realistic</th><th>could be missed</th>"
-            f"</tr>{rows}</table>")
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in _limit_header(one))
+    also = f" {html.escape(ONE_JOINT[0].upper() + ONE_JOINT[1:])}." if one else ""
+    return (f"<h2>What this log rules out</h2><p>{html.escape(LIMITS[0].upper() + LIMITS[1:])}.{also}</p>"
+            f"<table><tr>{head}</tr>{rows}</table>")
 
 
 def _headline(c: Comparison, h: int) -> float:
