@@ -58,7 +58,7 @@ demo: $(STAMP)
 	# compare, where, rank the catalogue, add effects while the error falls, what the log rules out, report.
 	$(BIN)/acn-collect --source mujoco --policy excite --episodes 6 --seconds 8 --seed 3 --workers 2 \
 		--hidden-effect actuator_latency --hidden-effect joint_damping --out $(OUT)/hidden --overwrite
-	$(BIN)/acn-diagnose $(OUT)/hidden --model mujoco --auto --limits --closed-loop 4 \
+	$(BIN)/acn-diagnose $(OUT)/hidden --model mujoco --auto --limits-per-joint --closed-loop 4 \
 		--json $(OUT)/hidden.diagnosis.json --report $(OUT)/hidden.report.html --save-model $(OUT)/hidden.model.json
 	@echo "diagnosis: $(OUT)/hidden.report.html (HTML), $(OUT)/hidden.diagnosis.json, fitted model $(OUT)/hidden.model.json"
 	@echo "the hidden answer: $(OUT)/hidden.answer.json"
