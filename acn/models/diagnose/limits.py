@@ -205,9 +205,9 @@ def _least_shown_joint(scan: _Scan, effect: Effect, p: Parameter) -> tuple[Limit
     k, n = len(values), len(JOINT_NAMES)
     removed, z, detected = (x.reshape(n, k) for x in _would_be(scan, effect, p, np.tile(values, n),
                                                                 np.repeat(np.arange(n), k)))
-    first = np.where(detected.any(1), detected.argmax(1), k)
-    by_joint = np.where(first < k, values[np.minimum(first, k - 1)], np.nan)
+    first = np.where(detected.any(1), detected.argmax(1), k)  # k: not shown at any size
     at = np.minimum(first, k - 1)
+    by_joint = np.where(first < k, values[at], np.nan)
     least = max(range(n), key=lambda i: (first[i], -removed[i, at[i]]))
     return _limit(scan, effect, p, least, (removed[least], z[least], detected[least])), by_joint
 
