@@ -380,9 +380,10 @@ def test_noisy_log_from_another_controller_finds_the_latency(noisy_logs):
 @NOISY_LOGS
 def test_the_smallest_effect_a_log_shows_is_where_a_hidden_one_is_named(noisy_logs, tmp_path):
     """``--limits`` on a noisy log without effects: the smallest joint damping ``--auto`` would name.
-    The same log (same seed, same noise) written with damping at 2.5x that is named, at 0.3x not."""
+    The same log (same seed, same noise) written with damping at 2.5x that is named, at 0.3x not.
+    Beside PD gains a strength is absorbed by them (the residual is the same: the gains nominal)."""
     from acn.datasets.importer import ImportConfig, import_log
-    from acn.models.diagnose.limits import sizes
+    from acn.models.diagnose.limits import limits, sizes
     from acn.models.diagnose.pipeline import rule_out
 
     cfg = replace(FAST, candidates=("joint_damping", "motor_strength", "joint_friction", "armature"))
@@ -405,6 +406,14 @@ def test_the_smallest_effect_a_log_shows_is_where_a_hidden_one_is_named(noisy_lo
     assert np.all(np.diff(below) < 0) and below[0] < control.torque_limit and below[-1] >= 1.0, below
     signed = sizes(get_effect("encoder_offset").parameters[0], control)
     assert np.all(signed > 0) and np.isclose(signed[-1], 0.3), signed
+    # Beside PD gains (kp and kd free) a motor strength is the same physics: had it been in the
+    # robot, the gains would have been fitted to it, so the log cannot show it beside them.
+    gains = get_effect("pd_gains")
+    beside = d.final.model.with_effect(gains, gains.nominal(control))
+    residual = d.problem.residual_of(beside.sim_config(control), d.judge_rows)
+    (alone,) = limits(d.problem, d.final.model, d.judge_rows, residual, d.floor_mse, ("motor_strength",))
+    (absorbed,) = limits(d.problem, beside, d.judge_rows, residual, d.floor_mse, ("motor_strength",))
+    assert alone.shows(0.8) and not absorbed.shows(0.8), (alone.to_json(), absorbed.to_json())
 
 
 @NOISY_LOGS

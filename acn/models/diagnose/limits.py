@@ -18,8 +18,17 @@ catalogue effect the final model does not hold:
 - the limit: the smallest such m, the bracket between the grid sizes around it halved
   ``BISECTIONS`` times (the limit is its upper end).
 
+- what the final model's own effects absorb of it: the final model was fitted to the log, so
+  had the effect been in the robot they would have moved to explain part of s(m) (PD gains with
+  kp and kd x 0.9 are motor strength 0.9, to the bit). They move by one Gauss-Newton step: the
+  dz, within their bounds, that fits s(m) best on the Jacobian J of the residual in their free
+  parameters (central differences at the final values, on the judge rows). The final model moved
+  by dz is simulated, and where its would-be residual r(dz) + s(m) is smaller than r + s(m), it
+  is the would-be residual (the one-step residual is not smooth enough to trust J alone: for
+  that strength J dz left 35 % of s). A fit of the effect beside them leaves r.
+
 A limit is optimistic: it assumes the fit finds the effect exactly, that no other effect
-stands in for it, and that noise in the measured start states does not bias its fit
+stands in for it beyond that first-order share, and that noise in the measured start states does not bias its fit
 (Coulomb friction from a noisy speed fits high: the reason a small friction is missed beside
 a larger effect). An effect that the log shows only over long predictions (a torque limit
 reached on few steps, ``rank.uneven``) can be found below its one-step limit. A signed
@@ -44,7 +53,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mujoco import minimize
+
 from acn.models.diagnose.add import too_little
+from acn.models.diagnose.fitting import FreeParameters, Objective, Together, central_jacobian, granularity_of
 from acn.models.diagnose.problem import Problem
 from acn.models.diagnose.rank import LARGEST_FACTOR, STRUCTURED_SHARE, Judgement, paired_z, significant_gain
 from acn.toolkit.effects import Effect, Model, Parameter, get_effect
@@ -144,6 +156,48 @@ def sizes(p: Parameter, control) -> np.ndarray:
 
 
 @dataclass
+class _Absorbed:
+    """What the final model's effects absorb of a signature (module docstring): the Jacobian of its
+    one-step residual in their free parameters z (each over its typical magnitude, ``fitting``'s
+    units) and how far z may move within their bounds."""
+
+    model: Model
+    free: Together
+    z0: np.ndarray     # (p,) the final values
+    jac: np.ndarray    # (N * C, p) d residual / d z on the judge rows, rows as in ``residual.ravel()``
+    lower: np.ndarray  # (p,) the least dz (to the lower bounds)
+    upper: np.ndarray  # (p,) the largest dz
+
+    @classmethod
+    def by(cls, problem: Problem, model: Model, rows: np.ndarray) -> _Absorbed | None:
+        """The Jacobian of ``model``'s effects at their values (None where it holds none)."""
+        if not model.effects:
+            return None
+        free = Together([FreeParameters(t.effect, granularity_of(t.effect, t.values), t.values) for t in model.effects])
+        scale = free.scale()
+        lo, hi = (b / scale for b in free.bounds())
+        z0 = free.start(None) / scale
+        jac = central_jacobian(Objective(problem, model, free, rows, budget=np.inf), lo, hi)(z0, None)
+        return cls(model, free, z0, jac * np.sqrt(len(rows)), lo - z0, hi - z0)  # the objective divides by sqrt(N)
+
+    def step(self, s: np.ndarray) -> np.ndarray:
+        """The Gauss-Newton step dz (p,) whose change of the residual, J dz, cancels ``s`` (N, C)
+        best, within the bounds."""
+        v = s.ravel()
+        dz = np.linalg.lstsq(self.jac, -v, rcond=1e-8)[0]
+        if np.any(dz < self.lower) or np.any(dz > self.upper):  # a bound stops them: fit within the box
+            jac = self.jac
+            dz = minimize.least_squares(np.clip(dz, self.lower, self.upper), lambda z: v[:, None] + jac @ z,
+                                        bounds=[self.lower, self.upper], jacobian=lambda z, r: jac,
+                                        verbose=0, max_iter=50)[0]
+        return dz
+
+    def config(self, dz: np.ndarray, control):
+        """The final model's simulator configuration with its effects moved by ``dz``."""
+        return self.free.model(self.model, (self.z0 + dz) * self.free.scale()).sim_config(control)
+
+
+@dataclass
 class _Scan:
     """What ``_would_be`` needs besides the sizes: the log's judge rows and their residuals under
     the final model, its noise floor, and the share of the error a fit on one joint must remove."""
@@ -154,6 +208,7 @@ class _Scan:
     residual: np.ndarray   # (N, C)
     floor_mse: float
     one_joint_removes: float
+    absorbed: _Absorbed | None  # what the final model's effects absorb (None: it holds none)
 
 
 def limits(problem: Problem, model: Model, rows: np.ndarray, residual: np.ndarray, floor_mse: float,
@@ -162,8 +217,9 @@ def limits(problem: Problem, model: Model, rows: np.ndarray, residual: np.ndarra
     hold, on judge ``rows`` whose residuals under ``model`` are ``residual`` (N, C). ``one_joint``:
     per-joint parameters are also scanned on one joint at a time (module docstring), where a fit
     must remove ``STRUCTURED_SHARE`` of the error if ``floor_says_noise``."""
-    scan = _Scan(problem, model, rows, residual, floor_mse, STRUCTURED_SHARE if floor_says_noise else 0.0)
     held = {t.name for t in model.effects}
+    scan = _Scan(problem, model, rows, residual, floor_mse, STRUCTURED_SHARE if floor_says_noise else 0.0,
+                 _Absorbed.by(problem, model, rows) if set(candidates) - held else None)
     out = []
     for name in candidates:
         if name in held:
@@ -234,15 +290,28 @@ def _would_be(scan: _Scan, effect: Effect, p: Parameter, values: np.ndarray,
     k, rows, residual = len(configs), scan.rows, scan.residual
     n = len(rows)
     with_effect = scan.problem.residual_of(configs, np.tile(rows, k), model_of_row=np.repeat(np.arange(k), n))
-    after = (residual ** 2).mean(1)  # a perfect fit leaves the final model's residual
+    # r + s, s = r - (r with the effect); blown up: error 10, as judged
+    would_be = [np.where(np.isfinite(w), w, 10.0) for w in np.split(2.0 * np.tile(residual, (k, 1)) - with_effect, k)]
     least_removed = scan.one_joint_removes if joints is not None else 0.0
-    removed, z, detected = np.zeros(k), np.zeros(k), np.zeros(k, dtype=bool)
-    for j in range(k):
-        would_be = 2.0 * residual - with_effect[j * n:(j + 1) * n]  # r + s, s = r - (r with the effect)
-        before = (np.where(np.isfinite(would_be), would_be, 10.0) ** 2).mean(1)  # blown up: error 10, as judged
-        mse_b, mse_a = float(before.mean()), float(after.mean())
-        removed[j] = 1.0 - mse_a / mse_b if mse_b > 0 else 0.0
-        z[j] = paired_z(before - after)
-        step = Judgement(mse_b, mse_a, removed[j], z[j], significant_gain(removed[j], z[j]), residual)
-        detected[j] = step.significant and not too_little(step, None, scan.floor_mse) and removed[j] >= least_removed
-    return removed, z, detected
+    judged = np.array([_judged(scan, w, least_removed) for w in would_be])
+    shown = np.flatnonzero(judged[:, 2])
+    if scan.absorbed is not None and len(shown):  # only lowers the error: only what is shown can change
+        a = scan.absorbed  # the final model's effects moved to explain s (module docstring)
+        moved = scan.problem.residual_of([a.config(a.step(would_be[j] - residual), control) for j in shown],
+                                         np.tile(rows, len(shown)), model_of_row=np.repeat(np.arange(len(shown)), n))
+        for j, r_moved in zip(shown, np.split(np.where(np.isfinite(moved), moved, 10.0), len(shown))):
+            other = r_moved + would_be[j] - residual
+            if np.mean(other ** 2) < np.mean(would_be[j] ** 2):
+                judged[j] = _judged(scan, other, least_removed)
+    return judged[:, 0], judged[:, 1], judged[:, 2].astype(bool)
+
+
+def _judged(scan: _Scan, would_be: np.ndarray, least_removed: float) -> tuple[float, float, bool]:
+    """The share of the would-be error (N, C) a perfect fit removes (it leaves the final model's
+    residual), its paired z, and whether ``--auto`` would add it at one step."""
+    before, after = (would_be ** 2).mean(1), (scan.residual ** 2).mean(1)
+    mse_b, mse_a = float(before.mean()), float(after.mean())
+    removed = 1.0 - mse_a / mse_b if mse_b > 0 else 0.0
+    z = paired_z(before - after)
+    step = Judgement(mse_b, mse_a, removed, z, significant_gain(removed, z), scan.residual)
+    return removed, z, step.significant and not too_little(step, None, scan.floor_mse) and removed >= least_removed

@@ -54,9 +54,11 @@ JSON keys (the machine-readable contract):
   ``nominal``, ``limit`` (the smallest value ``--auto`` would name beside the final model; null:
   none scanned), ``realistic``, ``realistic_missable`` (the part of the realistic range below the
   limit), ``inert`` (alone, the effect's other parameters nominal, it changes nothing), and the scan:
-  ``sizes``, ``removed``, ``z``, ``detected``; with ``--limits-per-joint``, a per-joint parameter
-  also has ``one_joint`` (the same keys, and ``joint``: the scan on the one joint the log shows
-  least) and ``by_joint`` (joint name -> the smallest size scanned it is shown at alone, null: none).
+  ``sizes``, ``removed``, ``z``, ``detected`` (``removed`` and ``z`` with the final model's effects
+  moved to explain the effect where the size is shown without that, else without it); with
+  ``--limits-per-joint``, a per-joint parameter also has ``one_joint`` (the same keys, and
+  ``joint``: the scan on the one joint the log shows least) and ``by_joint`` (joint name -> the
+  smallest size scanned it is shown at alone, null: none).
 """
 
 from __future__ import annotations
@@ -351,7 +353,8 @@ def terminal(d: Diagnosis) -> str:
 
 
 LIMITS = ("the smallest size of each effect not in the final model that --auto would name beside it, one step "
-          "ahead (optimistic: a fit that finds it exactly, nothing standing in for it, no noise bias; every joint "
+          "ahead (the final model's effects moved one Gauss-Newton step to explain it first; optimistic: a fit "
+          "that finds it exactly, nothing else standing in for it, no noise bias; every joint "
           "alike, the effect's other parameters nominal; a parameter that alone changes nothing, such as a payload's "
           "centre of mass, is left out)")  # under the heading "what this log rules out"
 
