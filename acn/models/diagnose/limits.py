@@ -295,16 +295,31 @@ def _would_be(scan: _Scan, effect: Effect, p: Parameter, values: np.ndarray,
     would_be = [np.where(np.isfinite(w), w, 10.0) for w in np.split(2.0 * np.tile(residual, (k, 1)) - with_effect, k)]
     least_removed = scan.one_joint_removes if joints is not None else 0.0
     judged = np.array([_judged(scan, w, least_removed) for w in would_be])
-    shown = np.flatnonzero(judged[:, 2])
-    if scan.absorbed is not None and len(shown):  # only lowers the error: only what is shown can change
-        a = scan.absorbed  # the final model's effects moved to explain s (module docstring)
-        moved = scan.problem.residual_of([a.config(a.step(would_be[j] - residual), control) for j in shown],
-                                         np.tile(rows, len(shown)), model_of_row=np.repeat(np.arange(len(shown)), n))
-        for j, r_moved in zip(shown, np.split(np.where(np.isfinite(moved), moved, 10.0), len(shown))):
-            other = r_moved + would_be[j] - residual
+    if scan.absorbed is not None:
+        groups = [np.arange(k)] if joints is None else [np.flatnonzero(joints == g) for g in np.unique(joints)]
+        _absorb(scan, would_be, judged, groups, least_removed)
+    return judged[:, 0], judged[:, 1], judged[:, 2].astype(bool)
+
+
+def _absorb(scan: _Scan, would_be: list[np.ndarray], judged: np.ndarray, groups: list[np.ndarray],
+            least_removed: float) -> None:
+    """Judge again (in place) with the final model's effects moved to explain each signature
+    (module docstring), where that can change the limit: absorbing only lowers the would-be
+    error, so only sizes shown without it can turn, and a larger size of the same parameter on
+    the same joints is taken to stay shown once one is. So per group of sizes (ascending), from
+    the first shown without absorbing up to the first shown with it, one batch per round."""
+    a, control, rows = scan.absorbed, scan.problem.control, scan.rows
+    pending = [g[judged[g, 2].astype(bool)] for g in groups]
+    while pending := [g for g in pending if len(g)]:
+        heads = [int(g[0]) for g in pending]
+        configs = [a.config(a.step(would_be[j] - scan.residual), control) for j in heads]
+        m = len(heads)
+        moved = scan.problem.residual_of(configs, np.tile(rows, m), model_of_row=np.repeat(np.arange(m), len(rows)))
+        for j, r_moved in zip(heads, np.split(np.where(np.isfinite(moved), moved, 10.0), m)):
+            other = r_moved + would_be[j] - scan.residual
             if np.mean(other ** 2) < np.mean(would_be[j] ** 2):
                 judged[j] = _judged(scan, other, least_removed)
-    return judged[:, 0], judged[:, 1], judged[:, 2].astype(bool)
+        pending = [g[1:] if not judged[g[0], 2] else g[:0] for g in pending]
 
 
 def _judged(scan: _Scan, would_be: np.ndarray, least_removed: float) -> tuple[float, float, bool]:

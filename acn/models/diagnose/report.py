@@ -55,7 +55,7 @@ JSON keys (the machine-readable contract):
   none scanned), ``realistic``, ``realistic_missable`` (the part of the realistic range below the
   limit), ``inert`` (alone, the effect's other parameters nominal, it changes nothing), and the scan:
   ``sizes``, ``removed``, ``z``, ``detected`` (``removed`` and ``z`` with the final model's effects
-  moved to explain the effect where the size is shown without that, else without it); with
+  moved to explain the effect at the sizes where that can move the limit, else without it); with
   ``--limits-per-joint``, a per-joint parameter also has ``one_joint`` (the same keys, and
   ``joint``: the scan on the one joint the log shows least) and ``by_joint`` (joint name -> the
   smallest size scanned it is shown at alone, null: none).
