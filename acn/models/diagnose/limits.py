@@ -11,6 +11,16 @@ catalogue effect the final model does not hold:
 - were the effect in the robot, the measured next states would move by s(m) (to first order:
   the prediction starts from the same measured state), and the final model's residual r would
   be r + s(m); a fit that found the effect exactly would leave r;
+- but the final model was fitted to the log: had the effect been in the robot, its effects
+  would have moved to explain part of s(m) (PD gains with kp and kd x 0.9 are a motor strength
+  of 0.9, to the bit). They move by one Gauss-Newton step (``_Absorbed``): the dz, within their
+  bounds, whose change J dz of the residual cancels s(m) best, J the Jacobian in their free
+  parameters (central differences at the final values, on the judge rows). The final model
+  moved by dz is simulated, and where its residual plus s(m) is smaller than r + s(m), that is
+  the would-be residual. J alone is not enough: the one-step residual is not smooth at small
+  scales (a 1 % change of both gains moved it 1.9x as far as J says; for that strength J dz
+  left 35 % of s, the simulated step 1 %). Absorbing only lowers the would-be error, so it is
+  simulated only where it can move the limit (``_absorb``);
 - the effect counts as detected at m where that perfect fit passes the rules ``--auto`` adds
   by: ``rank.judge``'s significance (at least ``MIN_IMPROVEMENT`` of the error, z >= 3 over
   blocks of rows, or ``LARGE_IMPROVEMENT``) and ``add.too_little`` at one step (explains
@@ -18,21 +28,12 @@ catalogue effect the final model does not hold:
 - the limit: the smallest such m, the bracket between the grid sizes around it halved
   ``BISECTIONS`` times (the limit is its upper end).
 
-- what the final model's own effects absorb of it: the final model was fitted to the log, so
-  had the effect been in the robot they would have moved to explain part of s(m) (PD gains with
-  kp and kd x 0.9 are motor strength 0.9, to the bit). They move by one Gauss-Newton step: the
-  dz, within their bounds, that fits s(m) best on the Jacobian J of the residual in their free
-  parameters (central differences at the final values, on the judge rows). The final model moved
-  by dz is simulated, and where its would-be residual r(dz) + s(m) is smaller than r + s(m), it
-  is the would-be residual (the one-step residual is not smooth enough to trust J alone: for
-  that strength J dz left 35 % of s). A fit of the effect beside them leaves r.
-
-A limit is optimistic: it assumes the fit finds the effect exactly, that no other effect
-stands in for it beyond that first-order share, and that noise in the measured start states does not bias its fit
-(Coulomb friction from a noisy speed fits high: the reason a small friction is missed beside
-a larger effect). An effect that the log shows only over long predictions (a torque limit
-reached on few steps, ``rank.uneven``) can be found below its one-step limit. A signed
-parameter (an offset) is scanned in the + direction only.
+A limit is optimistic: it assumes the fit finds the effect exactly, that nothing stands in for
+it beyond what one step of the final model's effects absorbs, and that noise in the measured
+start states does not bias its fit (Coulomb friction from a noisy speed fits high: the reason
+a small friction is missed beside a larger effect). An effect that the log shows only over
+long predictions (a torque limit reached on few steps, ``rank.uneven``) can be found below its
+one-step limit. A signed parameter (an offset) is scanned in the + direction only.
 
 One joint alone (``one_joint=True``, ``--limits-per-joint``): a worn gearbox or a weak motor sits
 in one joint. Each per-joint parameter is also set on one joint at a time, the other eleven
@@ -52,7 +53,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
 from mujoco import minimize
 
 from acn.models.diagnose.add import too_little
