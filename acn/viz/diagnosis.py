@@ -232,9 +232,9 @@ def _missable(limits: list[dict]) -> list[dict]:
 def _limit_line(x: dict) -> str:
     unit = "" if x.get("unit") in (None, "1") else f" {x['unit']}"
     at = f" on {x['joint']}" if isinstance(x.get("joint"), str) else ""
-    shown = f"{x['limit']:.3g}{unit}" if x["limit"] is not None else "nowhere in the range scanned"
-    return (f"- {x.get('effect')} {x.get('parameter')}{at}: shown from {shown}, "
-            f"realistic values it could miss: {x['realistic_missable']}")
+    shown = f"shown from {x['limit']:.3g}{unit}" if x["limit"] is not None else "not shown at any size scanned"
+    return f"- {x.get('effect')} {x.get('parameter')}{at}: {shown}, realistic values it could miss: " \
+        f"{x['realistic_missable']}"
 
 
 def add_diagnosis_view(model_spec: str | Path, frames: RecordedFrames, episodes: list[EpisodeView],
