@@ -58,7 +58,7 @@ from mujoco import minimize
 from acn.models.diagnose.add import too_little
 from acn.models.diagnose.fitting import FreeParameters, Objective, Together, central_jacobian, granularity_of
 from acn.models.diagnose.problem import Problem
-from acn.models.diagnose.rank import LARGEST_FACTOR, STRUCTURED_SHARE, Judgement, paired_z, significant_gain
+from acn.models.diagnose.rank import LARGEST_FACTOR, STRUCTURED_SHARE, judgement
 from acn.toolkit.effects import Effect, Model, Parameter, get_effect
 from acn.toolkit.state import JOINT_NAMES
 
@@ -325,9 +325,6 @@ def _absorb(scan: _Scan, would_be: list[np.ndarray], judged: np.ndarray, groups:
 def _judged(scan: _Scan, would_be: np.ndarray, least_removed: float) -> tuple[float, float, bool]:
     """The share of the would-be error (N, C) a perfect fit removes (it leaves the final model's
     residual), its paired z, and whether ``--auto`` would add it at one step."""
-    before, after = (would_be ** 2).mean(1), (scan.residual ** 2).mean(1)
-    mse_b, mse_a = float(before.mean()), float(after.mean())
-    removed = 1.0 - mse_a / mse_b if mse_b > 0 else 0.0
-    z = paired_z(before - after)
-    step = Judgement(mse_b, mse_a, removed, z, significant_gain(removed, z), scan.residual)
-    return removed, z, step.significant and not too_little(step, None, scan.floor_mse) and removed >= least_removed
+    step = judgement(would_be, scan.residual)
+    shown = step.significant and not too_little(step, None, scan.floor_mse) and step.removed >= least_removed
+    return step.removed, step.z, shown

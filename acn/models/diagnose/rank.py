@@ -274,9 +274,14 @@ def judge(problem: Problem, after: Model, rows: np.ndarray, before_residual: np.
     ``reference_mse``: the error the 2 % and 25 % thresholds refer to (default: the current one;
     a finer granularity of the same effect must improve on the error before the effect).
     """
-    ra = problem.residual_of(after.sim_config(problem.control), rows)
+    return judgement(before_residual, problem.residual_of(after.sim_config(problem.control), rows), reference_mse)
+
+
+def judgement(before_residual: np.ndarray, after_residual: np.ndarray, reference_mse: float | None = None) -> Judgement:
+    """The residuals ``after_residual`` (N, C) against ``before_residual`` on the same rows (``judge``):
+    rows whose before residual is not finite are left out, an after one that blew up counts 10."""
     ok = np.isfinite(before_residual).all(1)
-    ra = np.where(np.isfinite(ra), ra, 10.0)
+    ra = np.where(np.isfinite(after_residual), after_residual, 10.0)
     eb, ea = (before_residual[ok] ** 2).mean(1), (ra[ok] ** 2).mean(1)
     mse_b, mse_a = float(eb.mean()), float(ea.mean())
     z = paired_z(eb - ea)
