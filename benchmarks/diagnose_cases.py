@@ -101,16 +101,18 @@ from acn.models.diagnose.pipeline import rule_out  # noqa: E402
 from acn.toolkit.backends import IMU_ACC_KINDS  # noqa: E402
 from acn.toolkit.effects import CATALOGUE, Model  # noqa: E402
 from acn.toolkit.effects.catalogue import pd_gains_as_strength_damping, strength_damping_as_pd_gains  # noqa: E402
-from acn.toolkit.state import GROUPS  # noqa: E402
+from acn.toolkit.robot import URDF_JOINT  # noqa: E402
+from acn.toolkit.state import GROUPS, JOINT_NAMES  # noqa: E402
 
 OFFSETS = np.array([0.05, -0.08, 0.1, -0.04, 0.06, -0.12, 0.03, 0.09, -0.07, -0.1, 0.04, 0.08])
 WEAK = np.array([1.0, 1.0, 0.5, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0])  # FR_calf at half strength
 
 
-def _joints(attr: str, value: float):
+def _joints(attr: str, value: float, joint: str = ""):
+    """Set ``attr`` to ``value`` on every joint, or on ``joint`` alone (a JOINT_NAMES name)."""
     def edit(spec):
         for j in spec.joints:
-            if j.name != "root":
+            if j.name != "root" and (not joint or j.name == URDF_JOINT[joint]):
                 if attr == "damping":
                     j.damping[0] = value
                 elif attr == "stiffness":
@@ -205,7 +207,7 @@ def _both(*edits):
     return edit
 
 
-# name -> (LogSpec overrides, [(effect, parameter, true value), ...])
+# name -> (LogSpec overrides, [(effect, parameter, true value[, the one joint it is on]), ...])
 PAIRS = {
     "latency+damping": ({"latency_steps": 15, "spec_edit": _joints("damping", 0.5)},
                         [("actuator_latency", "seconds", 0.015), ("joint_damping", "value", 0.5)]),
@@ -220,6 +222,11 @@ PAIRS = {
     # a delay and a low-pass on one signal path (transport, then the driver's bandwidth)
     "latency+lag": ({"latency_steps": 8, "command_lag": 0.01},
                     [("actuator_latency", "seconds", 0.008), ("actuator_lag", "timeconst", 0.01)]),
+    # one weak motor, one worn joint beside an effect on every joint (4th entry: the one joint)
+    "latency+weak FR_calf": ({"latency_steps": 10, "strength": WEAK},
+                             [("actuator_latency", "seconds", 0.01), ("motor_strength", "scale", 0.5, "FR_calf")]),
+    "payload+damping RL_thigh": ({"spec_edit": _both(_payload, _joints("damping", 2.0, "RL_thigh"))},
+                                 [("payload", "mass", 2.0), ("joint_damping", "value", 2.0, "RL_thigh")]),
 }
 
 
@@ -242,9 +249,9 @@ def _drawn_latency(rng: np.random.Generator) -> tuple[dict, float]:
 
 
 def _drawn_joints(attr: str, effect: str):
-    def drawn(rng: np.random.Generator) -> tuple[dict, float]:
+    def drawn(rng: np.random.Generator, joint: str = "") -> tuple[dict, float]:
         v = _realistic(rng, effect)
-        return {"spec_edit": _joints(attr, v)}, v
+        return {"spec_edit": _joints(attr, v, joint)}, v
     return drawn
 
 
@@ -253,6 +260,15 @@ def _drawn_field(field: str, effect: str, wrap=lambda v: v):
         v = _realistic(rng, effect)
         return {field: wrap(v)}, v
     return drawn
+
+
+def _drawn_strength(rng: np.random.Generator, joint: str = "") -> tuple[dict, float]:
+    v = _realistic(rng, "motor_strength")
+    if not joint:
+        return {"strength": v}, v
+    strength = np.ones(len(JOINT_NAMES))
+    strength[JOINT_NAMES.index(joint)] = v
+    return {"strength": strength}, v
 
 
 def _drawn_floor(rng: np.random.Generator) -> tuple[dict, float]:
@@ -267,7 +283,7 @@ DRAWN = {
     "armature": ("value", _drawn_joints("armature", "armature")),
     "actuator_latency": ("seconds", _drawn_latency),
     "actuator_lag": ("timeconst", _drawn_field("command_lag", "actuator_lag")),
-    "motor_strength": ("scale", _drawn_field("strength", "motor_strength")),
+    "motor_strength": ("scale", _drawn_strength),
     "torque_limit": ("value", _drawn_field("torque_limit", "torque_limit")),
     "pd_gains": ("kp_scale", _drawn_field("gains", "pd_gains", lambda v: (v, 1.0))),
     "payload": ("mass", _drawn_payload),
@@ -275,8 +291,14 @@ DRAWN = {
 }
 
 
-def draw(seed: int) -> tuple[str, dict, list[tuple[str, str, float]]]:
-    """One fresh pair: (a name, its LogSpec overrides, [(effect, parameter, true value)] x 2)."""
+# the effects ``--one-joint`` sets on one drawn joint alone (a worn joint, a weak motor)
+ONE_JOINT = ("joint_damping", "joint_friction", "armature", "motor_strength")
+
+
+def draw(seed: int, one_joint: bool = False) -> tuple[str, dict, list[tuple[str, str, float, str]]]:
+    """One fresh pair: (a name, its LogSpec overrides, [(effect, parameter, true value, joint)] x 2);
+    ``one_joint``: an effect of ``ONE_JOINT`` is set on one joint drawn at random (joint: its name),
+    the others on every joint alike (joint: ""). Without it the draws are those of stops 55-68."""
     rng = np.random.default_rng(seed)
     while True:
         pair = sorted(str(e) for e in rng.choice(list(DRAWN), size=2, replace=False))
@@ -286,14 +308,15 @@ def draw(seed: int) -> tuple[str, dict, list[tuple[str, str, float]]]:
     edits, truth = [], []
     for effect in pair:
         key, drawn = DRAWN[effect]
-        o, true = drawn(rng)
+        joint = str(rng.choice(JOINT_NAMES)) if one_joint and effect in ONE_JOINT else ""
+        o, true = drawn(rng, joint) if joint else drawn(rng)
         if "spec_edit" in o:
             edits.append(o.pop("spec_edit"))
         over.update(o)
-        truth.append((effect, key, true))
+        truth.append((effect, key, true, joint))
     if edits:
         over["spec_edit"] = _both(*edits)
-    return "+".join(pair), over, truth
+    return "+".join(f"{e}@{j}" if j else e for e, _, _, j in truth), over, truth
 
 
 def dropped(args) -> tuple[str, ...]:
@@ -345,6 +368,23 @@ def same_physics(fitted: dict, hidden: set[str], kd: float) -> dict | None:
     return out if set(out) == hidden else None
 
 
+def _on_joint(limit, joint: str, true: float) -> tuple[str, str]:
+    """Where ``true`` on ``joint`` alone lies against ``limit``'s scan of that joint: "beyond" (at or past
+    the first grid size shown there), "short of" (at or within the size before it, or none shown),
+    "between" (between the two, or nearer nominal than the smallest size: the grid halves, that joint was
+    not bisected); and the limit's text."""
+    first = float(limit.by_joint[JOINT_NAMES.index(joint)])
+    distance = abs(true - limit.nominal)
+    text = f", {limit.one_joint.describe()} on any joint"
+    if not np.isfinite(first):
+        return "short of", f"not shown on {joint} alone{text}"
+    i = int(np.flatnonzero(limit.sizes == first)[0])
+    below = abs(limit.sizes[i - 1] - limit.nominal) if i > 0 else 0.0
+    where = ("beyond" if distance >= abs(first - limit.nominal) else "short of" if i > 0 and distance <= below
+             else "between")
+    return where, f"{first:.4g} on {joint} alone (grid){text}"
+
+
 def diagnose_pair(args, name: str, stem: str, over: dict, truth: list, seed: int, root: Path, tally: dict) -> None:
     """Write (``root/stem.csv``), import (``root/stem``) and diagnose (``--auto``) one log with two
     hidden effects; print its line and count into ``tally`` ({"named": [right, of], "same": [right or the
@@ -354,7 +394,7 @@ def diagnose_pair(args, name: str, stem: str, over: dict, truth: list, seed: int
     t = time.perf_counter()
     d = diagnose(load_measurements(path), Model.parse("mujoco"), DiagnoseConfig(), automatic=True)
     fitted = {t.name: t.values for t in d.final.model.effects}
-    hidden = {e for e, _, _ in truth}
+    hidden = {t[0] for t in truth}
     both = set(fitted) == hidden
     reading = None if both else same_physics(fitted, hidden, float(np.mean(d.problem.control.kd)))
     tally["named"][0] += both
@@ -365,19 +405,25 @@ def diagnose_pair(args, name: str, stem: str, over: dict, truth: list, seed: int
              for n, values in fitted.items() if reading is not None or n not in hidden]  # all, where read anew
     fitted = fitted if reading is None else reading
     cells = []
-    for effect, key, true in truth:
+    for effect, key, true, *on in truth:
+        joint = on[0] if on else ""  # the one joint the effect was set on ("": every joint)
+        at = f"@{joint}" if joint else ""
         if effect in fitted:
-            value = float(np.mean(fitted[effect][key]))
+            values = np.broadcast_to(np.asarray(fitted[effect][key], dtype=float), (len(JOINT_NAMES),)) \
+                if joint else np.asarray(fitted[effect][key], dtype=float)
+            value = float(values[JOINT_NAMES.index(joint)] if joint else np.mean(values))
             tally["within"][0] += abs(value - true) <= 0.15 * abs(true)
             tally["within"][1] += 1
-            cells.append(f"{effect}.{key}={value:.4g} (true {true:.4g})")
+            cells.append(f"{effect}.{key}{at}={value:.4g} (true {true:.4g})")
         else:
-            (limit,) = [x for x in rule_out(d, (effect,)) if x.parameter == key]
-            short = not limit.shows(true)
-            tally["short"][0] += short
+            (limit,) = [x for x in rule_out(d, (effect,), one_joint=bool(joint)) if x.parameter == key]
+            if joint:
+                where, said_limit = _on_joint(limit, joint, true)
+            else:
+                where, said_limit = ("short of" if not limit.shows(true) else "beyond"), limit.describe()
+            tally["short"][0] += where == "short of"
             tally["short"][1] += 1
-            cells.append(f"{effect} missed (true {key}={true:.4g}, {'short of' if short else 'beyond'} its limit "
-                         f"{limit.describe()})")
+            cells.append(f"{effect}{at} missed (true {key}={true:.4g}, {where} its limit {said_limit})")
     said = "yes" if both else "same" if reading is not None else "no"
     also = (" as " if reading is not None else " also ") + " ".join(extra) if extra else ""
     aside = f" set_aside={sorted(d.set_aside)}" if d.set_aside else ""
@@ -390,7 +436,7 @@ def pairs(args, root: Path) -> None:
     tally = {"named": [0, 0], "same": [0, 0], "within": [0, 0], "short": [0, 0]}
     if args.draws:
         for k in range(*args.draws):
-            name, over, truth = draw(args.seed0 + k)
+            name, over, truth = draw(args.seed0 + k, args.one_joint)
             print(f"d{k} ({over['controller']}): {name}", flush=True)
             diagnose_pair(args, f"d{k}", f"d{k}", over, truth, args.seed0 + k, root, tally)
     else:
@@ -426,6 +472,8 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--pairs", action="store_true", help="logs with two hidden effects instead (PAIRS)")
     ap.add_argument("--draws", default=None, metavar="K0:K1", type=_draws,
                     help="fresh random pairs k = K0..K1-1 instead (seeds --seed0 + k; see draw)")
+    ap.add_argument("--one-joint", action="store_true",
+                    help="--draws: a joint effect (damping, friction, armature, strength) on one drawn joint alone")
     ap.add_argument("--seed0", type=int, default=5500, help="--draws: the seed of draw 0")
     ap.add_argument("--keep", type=Path, default=None, help="keep the logs and datasets in this folder")
     ap.add_argument("--no-mocap", action="store_true", help="logs without the trunk's position and linear velocity")
