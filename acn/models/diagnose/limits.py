@@ -43,9 +43,9 @@ That limit holds for every joint: at or beyond it, one joint's effect is shown w
 sits. Detected by the same rules, and where the noise floor calls the log's error noise, the
 perfect fit must also remove ``STRUCTURED_SHARE`` of it: ``rank.finer_look``'s rule for a fit
 per joint there. The diagnosis looks at one joint alone in its first ranking (where no effect
-explains most of the error) and at an effect already added; beside added effects a new one is
-ranked with one value for every joint first, so there a limit per joint is a bound it may not
-reach.
+explains most of the error), at an effect already added, and (``--auto``: ``add.greedy``) at the
+new per-joint candidates beside the added effects before it stops. With ``--add`` alone it does
+not: there a limit per joint beside the added effects is a bound the diagnosis may not reach.
 """
 
 from __future__ import annotations

@@ -47,7 +47,7 @@ from acn.models.diagnose.pairing import action_row
 from acn.models.diagnose.problem import DiagnoseConfig, Problem, corrected, prepare
 from acn.models.diagnose.rate import physics_rate
 from acn.models.diagnose.rank import (SIGNIFICANCE_Z, STRUCTURED_SHARE, Candidate, doubt, explained_share, finer_look,
-                                      fits_noise_by_size, implausible, one_step_only, rank,
+                                      fits_noise_by_size, floor_says_noise, implausible, one_step_only, rank,
                                       ties_of)
 from acn.models.diagnose.where import breakdown
 from acn.toolkit.effects import Model, get_effect
@@ -267,7 +267,7 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
             c.judgement.significant and not doubt(c) and c.judgement.explained(floor_mse) >= EFFECT_SHARE
             for c in ranking):
         finer = finer_look(problem, model, cfg, judge_rows, residual, ranking,
-                           floor_says_noise=1.0 - floor_mse / mse < STRUCTURED_SHARE, progress=say)
+                           floor_says_noise=floor_says_noise(residual, floor_mse), progress=say)
         if finer is not ranking:
             ranking, floor = finer, floor_after(finer)
             floor_mse = float(np.mean(floor))

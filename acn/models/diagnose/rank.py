@@ -355,6 +355,12 @@ def order(problem: Problem, model: Model, cfg: DiagnoseConfig, out: list[Candida
     return noise_fits_last(out)  # those ``uneven`` found, too
 
 
+def floor_says_noise(residual: np.ndarray, floor_mse: float) -> bool:
+    """Whether less than ``STRUCTURED_SHARE`` of the error (MSE) of ``residual`` lies above the noise floor."""
+    mse = float(np.mean(residual ** 2))
+    return mse > 0 and 1.0 - floor_mse / mse < STRUCTURED_SHARE
+
+
 def finer_look(problem: Problem, model: Model, cfg: DiagnoseConfig, judge_rows: np.ndarray,
                base_residual: np.ndarray, ranking: list[Candidate], floor_says_noise: bool = False,
                progress=None, only: Collection[str] | None = None) -> list[Candidate]:
