@@ -68,13 +68,19 @@ With ``--pairs``, logs with TWO hidden effects instead (``--auto``), one line ea
 - ``pairs_missed_short_of_limit``: of the hidden effects missed, those whose true value lies short of
   the log's limit beside the final model (``acn-diagnose --limits``: the smallest size ``--auto`` would
   name); each missed effect's cell says ``short of`` or ``beyond`` its limit: one beyond it was
-  missed although the log shows it (an effect added stood in for it).
+  missed although the log shows it (an effect added stood in for it). A hidden effect on one
+  joint alone (the ``PAIRS`` with a fourth entry, ``--one-joint``) is named where it is added and
+  its value on that joint is compared; a missed one is placed against that joint's own scan
+  (``acn-diagnose --limits-per-joint``'s ``by_joint``): ``beyond`` or ``short of`` its grid size
+  first shown, or ``between`` (that joint is not bisected; not counted as short of).
 
 With ``--draws K0:K1``, fresh pairs drawn at random instead (``draw``; seeds ``--seed0`` + k, one
 per draw k): two different effects of ``DRAWN``, each at a value uniform in the catalogue's
 realistic range, on the sines or the pace controller (the pace wherever the floor's friction is
 drawn); the latency + lag pair is not drawn (a delay beside a lag is a known limit). The same
-line and totals as ``--pairs``. ``--keep DIR`` keeps every imported dataset there (``dK``), to
+line and totals as ``--pairs``. With ``--one-joint``, a drawn damping, friction, armature or
+strength sits on one joint drawn at random (a worn joint, a weak motor), the other effect on
+every joint alike; without it the draws are those of stops 55-68. ``--keep DIR`` keeps every imported dataset there (``dK``), to
 re-diagnose with ``acn-diagnose``.
 """
 
