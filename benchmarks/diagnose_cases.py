@@ -80,7 +80,8 @@ realistic range, on the sines or the pace controller (the pace wherever the floo
 drawn); the latency + lag pair is not drawn (a delay beside a lag is a known limit). The same
 line and totals as ``--pairs``. With ``--one-joint``, a drawn damping, friction, armature or
 strength sits on one joint drawn at random (a worn joint, a weak motor), the other effect on
-every joint alike; without it the draws are those of stops 55-68. ``--keep DIR`` keeps every imported dataset there (``dK``), to
+every joint alike; without it the draws are those of stops 55-68. ``--keep DIR`` keeps every
+imported dataset there (``dK``), to
 re-diagnose with ``acn-diagnose``.
 """
 
