@@ -339,7 +339,7 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
         if best is None and added and not looked:  # one joint apart (docstring)
             looked = True
             finer = finer_look(problem, current.model, cfg, judge_rows, residual, ranking, progress=progress,
-                               floor_says_noise=floor_says_noise(residual, floor_mse),
+                               floor_says_noise=floor_says_noise(float(np.mean(residual ** 2)), floor_mse),
                                only=[c.name for c in ranking if c.name not in names(added)])
             if finer is not ranking:
                 ranking = finer

@@ -48,7 +48,7 @@ from acn.models.diagnose.problem import DiagnoseConfig, Problem, corrected, prep
 from acn.models.diagnose.rate import physics_rate
 from acn.models.diagnose.rank import (SIGNIFICANCE_Z, STRUCTURED_SHARE, Candidate, doubt, explained_share, finer_look,
                                       fits_noise_by_size, floor_says_noise, implausible, one_step_only, rank,
-                                      ties_of)
+                                      structured_share, ties_of)
 from acn.models.diagnose.where import breakdown
 from acn.toolkit.effects import Model, get_effect
 
@@ -88,7 +88,7 @@ class Diagnosis:
 
     @property
     def structured_share(self) -> float:
-        return float(np.clip(1.0 - self.floor_mse / self.mse_judged, 0.0, 1.0)) if self.mse_judged > 0 else 0.0
+        return structured_share(self.mse_judged, self.floor_mse)
 
 
 def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Candidate], added: list[Added],
@@ -267,7 +267,7 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
             c.judgement.significant and not doubt(c) and c.judgement.explained(floor_mse) >= EFFECT_SHARE
             for c in ranking):
         finer = finer_look(problem, model, cfg, judge_rows, residual, ranking,
-                           floor_says_noise=floor_says_noise(residual, floor_mse), progress=say)
+                           floor_says_noise=floor_says_noise(mse, floor_mse), progress=say)
         if finer is not ranking:
             ranking, floor = finer, floor_after(finer)
             floor_mse = float(np.mean(floor))
@@ -316,7 +316,7 @@ def rule_out(d: Diagnosis, candidates: tuple[str, ...], one_joint: bool = False,
     model = d.final.model
     residual = d.problem.residual_of(model.sim_config(d.problem.control), d.judge_rows)
     return limits(d.problem, model, d.judge_rows, np.where(np.isfinite(residual), residual, 10.0), d.floor_mse,
-                  candidates, one_joint=one_joint, floor_says_noise=d.structured_share < STRUCTURED_SHARE)
+                  candidates, one_joint=one_joint, floor_says_noise=floor_says_noise(d.mse_judged, d.floor_mse))
 
 
 def explain_corrector(data: Measurements, model: Model, corrector_dir, cfg: DiagnoseConfig | None = None,

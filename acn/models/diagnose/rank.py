@@ -355,10 +355,14 @@ def order(problem: Problem, model: Model, cfg: DiagnoseConfig, out: list[Candida
     return noise_fits_last(out)  # those ``uneven`` found, too
 
 
-def floor_says_noise(residual: np.ndarray, floor_mse: float) -> bool:
-    """Whether less than ``STRUCTURED_SHARE`` of the error (MSE) of ``residual`` lies above the noise floor."""
-    mse = float(np.mean(residual ** 2))
-    return mse > 0 and 1.0 - floor_mse / mse < STRUCTURED_SHARE
+def structured_share(mse: float, floor_mse: float) -> float:
+    """The share of an error ``mse`` above the noise floor ``floor_mse``, 0..1 (0 where there is no error)."""
+    return float(np.clip(1.0 - floor_mse / mse, 0.0, 1.0)) if mse > 0 else 0.0
+
+
+def floor_says_noise(mse: float, floor_mse: float) -> bool:
+    """Whether less than ``STRUCTURED_SHARE`` of the error ``mse`` lies above the noise floor."""
+    return structured_share(mse, floor_mse) < STRUCTURED_SHARE
 
 
 def finer_look(problem: Problem, model: Model, cfg: DiagnoseConfig, judge_rows: np.ndarray,
