@@ -185,6 +185,31 @@ def test_written_out_backprop_gives_autograds_gradients(variant, layers):
         FlatMLPs([torch.nn.Sequential(torch.nn.Linear(3, 4), torch.nn.ReLU(), torch.nn.Linear(4, 2))], torch.float32)
 
 
+def test_adam_step_called_directly_gives_torch_adams_weights():
+    """AdamStep (the fused kernel called without the optimiser's Python) ends on the weights of
+    torch.optim.Adam(fused=True).step(), to the bit, with the learning rate changed between steps
+    (a schedule); an optimiser it cannot call directly goes through step()."""
+    from acn.models.backprop import AdamStep
+
+    gen = torch.Generator().manual_seed(3)
+    start = torch.randn(1000, generator=gen)
+    grads = [torch.randn(1000, generator=gen) for _ in range(6)]
+    ends = []
+    for direct in (True, False):
+        p = start.clone()
+        p.grad = torch.empty_like(p)
+        opt = torch.optim.Adam([p], lr=1e-2, fused=True)
+        step = AdamStep(opt) if direct else opt.step
+        for k, g in enumerate(grads):
+            opt.param_groups[0]["lr"] = 1e-2 * (1.0 - 0.1 * k)
+            p.grad.copy_(g)
+            step()
+        ends.append(p.clone())
+    assert torch.equal(ends[0], ends[1]) and not torch.equal(ends[0], start)
+    assert AdamStep(opt).direct and not AdamStep(torch.optim.Adam([p], lr=1e-2)).direct  # unfused: step()
+    assert not AdamStep(torch.optim.Adam([p], lr=1e-2, fused=True, amsgrad=True)).direct
+
+
 @pytest.mark.parametrize("precision", ["fp32", "bf16"])
 def test_training_leaves_separate_float32_parameters(precision, tmp_path):
     """Training uses one flat (bf16) buffer; afterwards each parameter is its own float32 tensor, the

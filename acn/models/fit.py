@@ -57,7 +57,7 @@ from acn.datasets.reader import PairedTransitions, load_paired, percentile_filte
 from acn.errors import UserError
 from acn.models.acn import (INPUT_CHANNELS, LABELLED, OUTPUT_CHANNELS, VARIANTS, acn_loss, acn_loss_and_grad,
                             input_channels, regression_loss, regression_loss_and_grad)
-from acn.models.backprop import FlatMLPs
+from acn.models.backprop import AdamStep, FlatMLPs
 from acn.models.corrector import Corrector, default_config
 from acn.models.evaluate import output_spread
 from acn.models.labels import Solution, SolveConfig
@@ -376,6 +376,7 @@ def _train(model: Corrector, tr: Split, cfg: FitConfig, on_epoch, epochs: int,
         # A graph replays the learning rate from a tensor it reads; eagerly it is a float.
         lr = torch.tensor(cfg.lr, device=dev) if graphed else cfg.lr
         opt = torch.optim.Adam([flat.master], lr=lr, fused=True, capturable=graphed)
+        adam_step = AdamStep(opt)
         gen = torch.Generator(device="cpu").manual_seed(cfg.seed)
         history, n, b = [], len(tr), cfg.batch_size
         steps = epochs * ((n + b - 1) // b)
@@ -395,7 +396,7 @@ def _train(model: Corrector, tr: Split, cfg: FitConfig, on_epoch, epochs: int,
                 loss = flat.step(batch.x, lambda out: _batch_loss(
                     out[0], out[1].view(m, net.n_out, net.n_action) if len(out) > 1 else None, batch, cfg,
                     report_fit=False)[0])
-            opt.step()
+            adam_step()
             flat.sync()
             total.add_(loss, alpha=m)
 
