@@ -623,6 +623,8 @@ def import_main(argv: list[str] | None = None) -> int:
         if r.suggested_map:
             print(f"columns named like channels the log lacks, as a --map file (check units and leg order"
                   f"{naming.arrays_read(r.suggested_map)}; import again with it): {json.dumps(r.suggested_map)}")
+        for note in r.map_notes:
+            print(note)
         if r.unused:
             print(f"columns no channel reads ({len(r.unused)}): {', '.join(r.unused[:12])}"
                   f"{', ...' if len(r.unused) > 12 else ''} (--map names a column for a channel)")

@@ -168,6 +168,38 @@ def test_the_draft_map_names_one_orientation(tmp_path):
     assert report.suggested_map == {} and sorted(report.unused) == sorted(quat)
 
 
+def test_a_quaternion_array_is_drafted_in_the_order_its_data_show(tmp_path, log_rows):
+    """A Parquet log with the trunk's orientation as one quaternion array (Unitree's SDK: w
+    first) and no Euler angles gets it drafted in that order, with a note saying the data told it,
+    and imports with the draft to the log's own angles; written w last at a heading near 0 the
+    data do not tell the order: nothing is drafted and the note asks for it."""
+    from acn.datasets.importer import ImportConfig, import_log
+    from acn.toolkit.rotations import rpy_to_quat
+
+    euler = ("base_roll", "base_pitch", "base_yaw")
+    x, y, z, w = rpy_to_quat(np.stack([log_rows[c] for c in euler]))
+    assert np.abs(log_rows["base_yaw"]).max() < 0.5  # the case where w last cannot be told from w first
+    table = {k: v for k, v in log_rows.items() if k not in euler}
+    cfg = ImportConfig(50, 60.0, 1.5, 33.5)
+    for order, parts in (("wxyz", (w, x, y, z)), ("xyzw", (x, y, z, w))):
+        pq.write_table(pa.table({**table, "quat": pa.array(list(np.column_stack(parts)), pa.list_(pa.float64()))}),
+                       str(tmp_path / f"{order}.parquet"))
+        _, report = import_log(tmp_path / f"{order}.parquet", tmp_path / f"{order}_draft", cfg)
+        drafted = {k: v for k, v in report.suggested_map.items() if k.startswith("base_quat")}
+        (note,) = report.map_notes
+        if order == "xyzw":
+            assert drafted == {} and "an order the data do not tell" in note, note
+            continue
+        assert drafted == {f"base_quat_{a}": f"quat[{i}]" for i, a in enumerate("wxyz")}
+        assert "in wxyz order" in note and "told by the data" in note, note
+        (tmp_path / "map.json").write_text(json.dumps(drafted))
+        _, report = import_log(tmp_path / f"{order}.parquet", tmp_path / order, cfg, map_path=tmp_path / "map.json")
+        assert report.quaternion and report.map_notes == []
+        m = load_measurements(tmp_path / order)
+        assert np.allclose(m.state[:49, [STATE_NAMES.index(c) for c in euler]],  # the first episode
+                           np.column_stack([log_rows[c] for c in euler])[:49], atol=1e-6)
+
+
 def test_a_hybrid_command_is_stored_whole(tmp_path, acn):
     """An MIT-style command (q_des, dq_des, tau_ff, PD gains per joint type) is stored whole: the
     actions are 60 wide (q_des, kp, kd, dq_des, tau_ff), and the target the checks read is the

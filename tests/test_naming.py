@@ -108,3 +108,27 @@ def test_a_foot_force_gets_the_threshold_that_splits_swing_from_stance():
     assert contact_threshold(np.full(10, 3.0)) is None
     assert [foot_force_of(n) for n in ("FR_foot_force", "footForce_RL", "grf_LF", "FR_hip_force", "force_x")] == \
         ["FR", "RL", "FL", None, None]
+
+
+def test_a_quaternion_arrays_order_is_read_from_a_trunk_near_level():
+    """A trunk near level keeps its quaternion's x and y small while w and z swing with the
+    heading: elements 1, 2 small is w first, 0, 1 small is w last; a heading that stays near 0 in
+    w-last order reads as a heading near pi in w-first order, so the data do not tell; rows that
+    are not unit quaternions, or a trunk tumbling, are not read."""
+    from acn.datasets.naming import quaternion_order
+    from acn.toolkit.rotations import rpy_to_quat
+
+    rng = np.random.default_rng(0)
+    n = 400
+    tilt = rng.uniform(-0.25, 0.25, (2, n))
+    turning = np.stack([*tilt, rng.uniform(-np.pi, np.pi, n)])
+    straight = np.stack([*tilt, rng.uniform(-0.1, 0.1, n)])
+    x, y, z, w = rpy_to_quat(turning)
+    assert quaternion_order(np.column_stack([w, x, y, z])) == "wxyz"
+    assert quaternion_order(np.column_stack([x, y, z, w])) == "xyzw"
+    x, y, z, w = rpy_to_quat(straight)
+    assert quaternion_order(np.column_stack([w, x, y, z])) == "wxyz"
+    assert quaternion_order(np.column_stack([x, y, z, w])) is None  # = w first at a heading near pi
+    assert quaternion_order(2.0 * np.column_stack([w, x, y, z])) is None
+    tumbling = rng.normal(size=(n, 4))
+    assert quaternion_order(tumbling / np.linalg.norm(tumbling, axis=1, keepdims=True)) is None

@@ -120,6 +120,7 @@ class ImportReport:
     partial_effort: list[str] = field(default_factory=list)  # effort.* columns of fewer than 12 joints: not stored
     unused: list[str] = field(default_factory=list)  # the log's columns no channel reads
     suggested_map: dict[str, str | dict] = field(default_factory=dict)  # unused columns named like channels it lacks
+    map_notes: list[str] = field(default_factory=list)  # what the draft map read from the data (a quaternion's order)
     malformed: list[str] = field(default_factory=list)  # CSV lines set aside ("file:line" of several files; read_table)
     text_rows: int = 0     # rows with text among numbers, read as NaN (cut where a channel reads it)
     text_example: str = ""
@@ -416,7 +417,7 @@ def import_log(log: str | Path | list[str | Path], out: str | Path, cfg: ImportC
     cols = resolve_columns(table, mapping)
     read = {naming.map_column(e) for e in mapping.values()} | set(KNOWN_COLUMNS)
     unused = [c for c in table if c not in read]
-    suggested = _draft_map(table, unused, cols)
+    suggested, map_notes = _draft_map(table, unused, cols)
     quaternion = any(c in cols for c in QUAT_COLUMNS)
     # a channel the logger wrote as an empty (all-NaN) column is a channel it did not log
     cols = {k: v for k, v in cols.items() if k in INDEX_COLUMNS or np.isfinite(v).any()}
@@ -424,7 +425,7 @@ def import_log(log: str | Path | list[str | Path], out: str | Path, cfg: ImportC
     n = len(next(iter(cols.values()))) if cols else 0
     if "timestamp" not in cols:
         like = f" (columns named like the channels it lacks, as a --map file: {json.dumps(suggested)})" \
-            if "timestamp" in suggested else ""
+            + "".join(f"; {note}" for note in map_notes) if "timestamp" in suggested else ""
         raise UserError(f"{log} has no timestamp column (s); map one with --map{like}")
     joint_pos = [c for c in GROUPS["joint_pos"] if c not in cols]
     actions = [c for c in ACTION_COLUMNS if c not in cols]
@@ -493,7 +494,7 @@ def import_log(log: str | Path | list[str | Path], out: str | Path, cfg: ImportC
                               dropped_short=dropped, missing=missing,
                               findings=checks.check(written, period, cfg.action_mode), step_spread=spread,
                               hybrid=hybrid, quaternion=quaternion, partial_effort=partial_effort, unused=unused,
-                              suggested_map=suggested, malformed=read_log.malformed,
+                              suggested_map=suggested, map_notes=map_notes, malformed=read_log.malformed,
                               text_rows=read_log.text_rows, text_example=read_log.text_example)
         writer.meta.info[schema.ACN_KEY]["import"] = {"file": logs[0].name, "files": [p.name for p in logs],
                           "rows": n, "transitions": transitions,
@@ -588,11 +589,14 @@ def _hybrid_actions(action: np.ndarray, cols: dict[str, np.ndarray], cfg: Import
     return np.concatenate([action, kp, kd, velocity, torque], axis=1), list(extra)
 
 
-def _draft_map(table: dict[str, np.ndarray], unused: list[str], cols: dict[str, np.ndarray]) -> dict[str, str | dict]:
+def _draft_map(table: dict[str, np.ndarray], unused: list[str],
+               cols: dict[str, np.ndarray]) -> tuple[dict[str, str | dict], list[str]]:
     """A draft ``--map`` for the channels ``cols`` lacks from the ``unused`` columns of the log
-    (``acn.datasets.naming``): by their names; contact flags from foot forces, each with the
-    threshold that splits its readings into swing and stance (``naming.contact_threshold``); one
-    orientation, the one the log has, else a whole quaternion."""
+    (``acn.datasets.naming``), and notes on what it read from the data: by their names; contact
+    flags from foot forces, each with the threshold that splits its readings into swing and stance
+    (``naming.contact_threshold``); one orientation, the one the log has, else a whole quaternion,
+    else a quaternion array (``quat[0]`` ... ``quat[3]``) in the order its data show
+    (``naming.quaternion_order``; a note says so, or asks for the order where the data do not tell)."""
     draft = naming.suggest_map(unused, [c for c in naming.CHANNELS if c not in cols])
     forces = naming.suggest_map(unused, [c for c in GROUPS["contact"] if c not in cols and c not in draft],
                                 describe=naming.contact_of_force)
@@ -600,9 +604,16 @@ def _draft_map(table: dict[str, np.ndarray], unused: list[str], cols: dict[str, 
         if (threshold := naming.contact_threshold(table[column])) is not None:
             draft[channel] = {"column": column, "threshold": round(threshold, 3)}
     euler, quat = GROUPS["base_rpy"], QUAT_COLUMNS
+    notes = []
+    oriented = any(c in cols or c in draft for c in (*euler, *quat))
+    if not oriented and len(arrays := naming.quaternion_arrays(table, unused)) == 1:
+        (base, order), = arrays.items()
+        notes.append(naming.quaternion_note(base, order))
+        if order is not None:
+            draft.update({f"base_quat_{a}": f"{base}[{order.index(a)}]" for a in "wxyz"})
     drop = quat if any(c in cols for c in euler) else euler if any(c in cols for c in quat) or \
         all(c in draft for c in quat) else ()
-    return {k: v for k, v in draft.items() if k not in drop}
+    return {k: v for k, v in draft.items() if k not in drop}, notes
 
 
 def _reorder_legs(cols: dict[str, np.ndarray], order: tuple[str, ...]) -> dict[str, np.ndarray]:

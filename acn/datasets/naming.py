@@ -233,5 +233,54 @@ def elements(columns: list[str]) -> list[tuple[str, str]]:
     return out
 
 
+QUAT_ORDERS = {"wxyz": "w first: MuJoCo, Unitree's SDK, Eigen's constructor",
+               "xyzw": "w last: ROS, scipy, Eigen's coeffs()"}
+LEVEL = 0.3  # |x|, |y| of a trunk's quaternion within 35 degrees of level (sin(35 deg / 2)), at the 90th percentile
+
+
+def quaternion_order(q: np.ndarray) -> str | None:
+    """The order of a 4-element array column (``q`` (rows, 4)) that holds the trunk's unit
+    quaternion, read from the data: a legged robot's trunk stays near level, so its x and y
+    components stay small (``LEVEL``) while w and z swing with the heading. "wxyz" where elements
+    1 and 2 are the small ones, "xyzw" where 0 and 1 are; None where it cannot tell (a heading
+    near 0 in one order reads as a heading near pi in the other: elements 0, 1 and 2 all small),
+    where the trunk is not near level, or where the rows are not unit quaternions."""
+    q = np.asarray(q, float)
+    q = q[np.isfinite(q).all(axis=1)]
+    if len(q) < 10 or not np.all(np.abs(np.linalg.norm(q, axis=1) - 1.0) < 0.01):
+        return None
+    small = {i for i in range(4) if np.percentile(np.abs(q[:, i]), 90) < LEVEL}
+    first, last = {1, 2} <= small, {0, 1} <= small
+    return "wxyz" if first and not last else "xyzw" if last and not first else None
+
+
+def quaternion_arrays(table: dict[str, np.ndarray], columns: list[str]) -> dict[str, str | None]:
+    """The 4-element array columns among ``columns`` (``quat[0]`` ... ``quat[3]``) whose rows are
+    unit quaternions, by base name -> their order (``quaternion_order``; None: not told by the data)."""
+    bases: dict[str, list[int]] = {}
+    for c in columns:
+        if (m := re.fullmatch(r"(.+)\[(\d+)\]", c)) is not None:
+            bases.setdefault(m.group(1), []).append(int(m.group(2)))
+    out = {}
+    for base, index in bases.items():
+        if sorted(index) != [0, 1, 2, 3]:
+            continue
+        q = np.stack([np.asarray(table[f"{base}[{i}]"], float) for i in range(4)], axis=1)
+        finite = q[np.isfinite(q).all(axis=1)]
+        if len(finite) and np.median(np.abs(np.linalg.norm(finite, axis=1) - 1.0)) < 0.01:
+            out[base] = quaternion_order(q)
+    return out
+
+
+def quaternion_note(base: str, order: str | None) -> str:
+    """What the draft map does with a quaternion array: mapped in the order the data show, or left to the user."""
+    if order is not None:
+        return (f"{base}[0..3] read as the trunk's quaternion in {order} order ({QUAT_ORDERS[order]}), told by the "
+                "data: its x and y stay small, as a trunk near level")
+    return (f"{base}[0..3] look like the trunk's quaternion, in an order the data do not tell (the heading stays near "
+            f"0 or pi, or the trunk is not near level): map base_quat_w, _x, _y, _z to its elements in the order the "
+            f"logger writes ({'; '.join(QUAT_ORDERS.values())})")
+
+
 CHANNELS = ("timestamp", "episode_index") + STATE_NAMES + tuple(f"base_quat_{a}" for a in "wxyz") + tuple(
     f"{k}.{j}" for k in ("action", "effort", "action_vel", "action_kp", "action_kd") for j in JOINT_NAMES)
