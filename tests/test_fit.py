@@ -185,28 +185,44 @@ def test_written_out_backprop_gives_autograds_gradients(variant, layers):
         FlatMLPs([torch.nn.Sequential(torch.nn.Linear(3, 4), torch.nn.ReLU(), torch.nn.Linear(4, 2))], torch.float32)
 
 
-def test_adam_step_called_directly_gives_torch_adams_weights():
+def test_adam_step_called_directly_gives_torch_adams_weights(monkeypatch):
     """AdamStep (the fused kernel called without the optimiser's Python) ends on the weights of
     torch.optim.Adam(fused=True).step(), to the bit, with the learning rate changed between steps
-    (a schedule); an optimiser it cannot call directly goes through step()."""
+    (a schedule); where the kernel refuses its arguments (another torch) it goes through step()
+    from then on, to the same weights; an optimiser it cannot call directly goes through step()."""
     from acn.models.backprop import AdamStep
 
     gen = torch.Generator().manual_seed(3)
     start = torch.randn(1000, generator=gen)
     grads = [torch.randn(1000, generator=gen) for _ in range(6)]
-    ends = []
-    for direct in (True, False):
+
+    def train(kind: str) -> torch.Tensor:
         p = start.clone()
         p.grad = torch.empty_like(p)
         opt = torch.optim.Adam([p], lr=1e-2, fused=True)
-        step = AdamStep(opt) if direct else opt.step
+        step = opt.step if kind == "step" else AdamStep(opt)
         for k, g in enumerate(grads):
             opt.param_groups[0]["lr"] = 1e-2 * (1.0 - 0.1 * k)
             p.grad.copy_(g)
             step()
-        ends.append(p.clone())
-    assert torch.equal(ends[0], ends[1]) and not torch.equal(ends[0], start)
-    assert AdamStep(opt).direct and not AdamStep(torch.optim.Adam([p], lr=1e-2)).direct  # unfused: step()
+        assert kind != "refused" or not step.direct
+        return p
+
+    reference = train("step")
+    assert torch.equal(train("direct"), reference) and not torch.equal(reference, start)
+    kernel, calls = torch._fused_adam_, []
+
+    def refuses_once(*args, **kwargs):  # the first direct call, as a torch with another signature would
+        calls.append(1)
+        if len(calls) == 2:  # the first call is step()'s own, which creates the state
+            raise TypeError("_fused_adam_() got an unexpected keyword argument")
+        return kernel(*args, **kwargs)
+
+    monkeypatch.setattr(torch, "_fused_adam_", refuses_once)
+    assert torch.equal(train("refused"), reference)
+    p = start.clone()
+    assert AdamStep(torch.optim.Adam([p], lr=1e-2, fused=True)).direct
+    assert not AdamStep(torch.optim.Adam([p], lr=1e-2)).direct  # unfused: step()
     assert not AdamStep(torch.optim.Adam([p], lr=1e-2, fused=True, amsgrad=True)).direct
 
 

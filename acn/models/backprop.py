@@ -150,9 +150,10 @@ class AdamStep:
 
     Through ``opt.step()`` the optimiser's Python (hooks, grouping tensors by device and dtype)
     costs as much as the kernel on the paper's 264k parameters (165 against 82 us a step on two
-    cores here; training ran 10 % faster without it). The first step (which creates the state), any other
-    optimiser and a torch without the kernel go through ``opt.step()``; the learning rate is read
-    from the optimiser's group at every step (a schedule sets it there)."""
+    cores here; training ran 10 % faster without it). The first step (which creates the state),
+    any other optimiser and a torch without the kernel (or whose kernel refuses these arguments)
+    go through ``opt.step()``; the learning rate is read from the optimiser's group at every step
+    (a schedule sets it there)."""
 
     def __init__(self, opt: torch.optim.Optimizer) -> None:
         group = opt.param_groups[0]
@@ -175,6 +176,11 @@ class AdamStep:
         params, grads, exp_avgs, exp_avg_sqs, steps = self.state
         g = self.group
         steps[0].add_(1)  # as torch.optim.Adam's fused path: the count, then the kernel
-        torch._fused_adam_(params, grads, exp_avgs, exp_avg_sqs, [], steps, amsgrad=False, lr=g["lr"],
-                           beta1=g["betas"][0], beta2=g["betas"][1], weight_decay=0.0, eps=g["eps"],
-                           maximize=False, grad_scale=None, found_inf=None)
+        try:
+            torch._fused_adam_(params, grads, exp_avgs, exp_avg_sqs, [], steps, amsgrad=False, lr=g["lr"],
+                               beta1=g["betas"][0], beta2=g["betas"][1], weight_decay=0.0, eps=g["eps"],
+                               maximize=False, grad_scale=None, found_inf=None)
+        except (TypeError, RuntimeError):  # a torch whose kernel takes other arguments: refused before it runs
+            steps[0].sub_(1)
+            self.direct = False
+            self.opt.step()
