@@ -424,8 +424,8 @@ def import_log(log: str | Path | list[str | Path], out: str | Path, cfg: ImportC
     cols = _shift_actions(_reorder_legs(_orientation(cols), tuple(cfg.leg_order)), cfg.shift_actions)
     n = len(next(iter(cols.values()))) if cols else 0
     if "timestamp" not in cols:
-        like = f" (columns named like the channels it lacks, as a --map file: {json.dumps(suggested)})" \
-            + "".join(f"; {note}" for note in map_notes) if "timestamp" in suggested else ""
+        like = (f" (columns named like the channels it lacks, as a --map file: {json.dumps(suggested)})"
+                + "".join(f"; {note}" for note in map_notes)) if "timestamp" in suggested else ""
         raise UserError(f"{log} has no timestamp column (s); map one with --map{like}")
     joint_pos = [c for c in GROUPS["joint_pos"] if c not in cols]
     actions = [c for c in ACTION_COLUMNS if c not in cols]

@@ -214,15 +214,21 @@ def arrays_read(suggested: dict[str, str]) -> str:
     return f"; arrays read in {ARRAY_ORDER}" if any(c.endswith("]") for c in columns) else ""
 
 
+def array_columns(columns: list[str]) -> dict[str, list[int]]:
+    """The array columns among ``columns``, read one element each (``q[0]``, ``q[1]``, ...): base name -> indices."""
+    arrays: dict[str, list[int]] = {}
+    for c in columns:
+        if (m := re.fullmatch(r"(.+)\[(\d+)\]", c)) is not None:
+            arrays.setdefault(m.group(1), []).append(int(m.group(2)))
+    return arrays
+
+
 def elements(columns: list[str]) -> list[tuple[str, str]]:
     """(column, the name it would have) for the elements of array columns (``q[0]`` ... ``q[11]``,
     ``gyro[0]`` ... ``gyro[2]``, ``contact[0]`` ... ``contact[3]``), read in ``ARRAY_ORDER``: 12
     elements are the joints, 4 the feet, 3 the axes (roll, pitch, yaw for ``rpy``). A quaternion's
     order differs between libraries (w first or last): not read."""
-    arrays: dict[str, list[int]] = {}
-    for c in columns:
-        if (m := re.fullmatch(r"(.+)\[(\d+)\]", c)) is not None:
-            arrays.setdefault(m.group(1), []).append(int(m.group(2)))
+    arrays = array_columns(columns)
     parts = {12: JOINT_NAMES, 4: FOOT_NAMES, 3: ("x", "y", "z")}
     out = []
     for base, index in arrays.items():
@@ -247,7 +253,7 @@ def quaternion_order(q: np.ndarray) -> str | None:
     where the trunk is not near level, or where the rows are not unit quaternions."""
     q = np.asarray(q, float)
     q = q[np.isfinite(q).all(axis=1)]
-    if len(q) < 10 or not np.all(np.abs(np.linalg.norm(q, axis=1) - 1.0) < 0.01):
+    if len(q) < 10 or not unit_quaternions(q):
         return None
     small = {i for i in range(4) if np.percentile(np.abs(q[:, i]), 90) < LEVEL}
     first, last = {1, 2} <= small, {0, 1} <= small
@@ -257,19 +263,20 @@ def quaternion_order(q: np.ndarray) -> str | None:
 def quaternion_arrays(table: dict[str, np.ndarray], columns: list[str]) -> dict[str, str | None]:
     """The 4-element array columns among ``columns`` (``quat[0]`` ... ``quat[3]``) whose rows are
     unit quaternions, by base name -> their order (``quaternion_order``; None: not told by the data)."""
-    bases: dict[str, list[int]] = {}
-    for c in columns:
-        if (m := re.fullmatch(r"(.+)\[(\d+)\]", c)) is not None:
-            bases.setdefault(m.group(1), []).append(int(m.group(2)))
     out = {}
-    for base, index in bases.items():
+    for base, index in array_columns(columns).items():
         if sorted(index) != [0, 1, 2, 3]:
             continue
         q = np.stack([np.asarray(table[f"{base}[{i}]"], float) for i in range(4)], axis=1)
-        finite = q[np.isfinite(q).all(axis=1)]
-        if len(finite) and np.median(np.abs(np.linalg.norm(finite, axis=1) - 1.0)) < 0.01:
+        if unit_quaternions(q[np.isfinite(q).all(axis=1)]):
             out[base] = quaternion_order(q)
     return out
+
+
+def unit_quaternions(q: np.ndarray) -> bool:
+    """Whether rows ``q`` (rows, 4) are unit quaternions: the median norm within 0.01 of 1 (a
+    sensor's noise moves single rows off it)."""
+    return len(q) > 0 and bool(np.median(np.abs(np.linalg.norm(q, axis=1) - 1.0)) < 0.01)
 
 
 def quaternion_note(base: str, order: str | None) -> str:
