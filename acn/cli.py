@@ -16,11 +16,28 @@ from pathlib import Path
 from typing import Callable, Iterator, NoReturn
 
 from acn.errors import UserError
+from acn.outputs import check_input_dir, check_output
 
 EXIT_USAGE, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 2, 130, 141  # 141: 128 + SIGPIPE
 
 
+class _Help(argparse.HelpFormatter):
+    """Every option's help ends with its default (where it has one)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        if action.option_strings and default is not None and default is not False and default != [] \
+                and default is not argparse.SUPPRESS and "%(default)" not in text and "default" not in text.lower():
+            shown = ",".join(map(str, default)) if isinstance(default, tuple) else "%(default)s"
+            text += f" (default: {shown})"
+        return text
+
+
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, formatter_class=_Help, **kwargs)
+
     def error(self, message: str) -> NoReturn:  # one line instead of usage + error
         self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see --help)\n")
 
@@ -39,27 +56,36 @@ def _run(prog: str, body: Callable[[], int | None]) -> int:
         return EXIT_BROKEN_PIPE
 
 
-def _number(kind: type, minimum: float, inclusive: bool) -> Callable[[str], float]:
-    """An argparse type: a finite ``kind`` (int or float) >= or > ``minimum``."""
+def _number(kind: type, minimum: float, inclusive: bool, maximum: float = 1e9) -> Callable[[str], float]:
+    """An argparse type: a finite ``kind`` (int or float) >= or > ``minimum`` and <= ``maximum``
+    (by default 1e9: past it every setting of this toolkit is a typo, and some overflow)."""
     word = "a whole number" if kind is int else "a number"
-    bound = f"{'>=' if inclusive else '>'} {minimum:g}"
+    bound = f"{'>=' if inclusive else '>'} {minimum:g} and <= {maximum:g}"
 
     def parse(text: str):
         try:
             v = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {word}, got {text!r}") from None
-        if not (v == v and abs(v) != float("inf")) or v < minimum or (v == minimum and not inclusive):
-            raise argparse.ArgumentTypeError(f"expected a finite number {bound}, got {text}")
+        except (ValueError, OverflowError):
+            raise argparse.ArgumentTypeError(f"expected {word}, got {text!r:.40}") from None
+        if not (v == v and abs(v) != float("inf")) or v < minimum or (v == minimum and not inclusive) or v > maximum:
+            raise argparse.ArgumentTypeError(f"expected a finite number {bound}, got {text:.40}")
         return v
 
     return parse
+
+
+def _out_path(text: str) -> Path:
+    """An argparse type for an output path: not empty (``Path("")`` would be the working directory)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an empty path")
+    return Path(text)
 
 
 _positive_int = _number(int, 1, inclusive=True)
 _nonneg_int = _number(int, 0, inclusive=True)
 _positive_float = _number(float, 0, inclusive=False)
 _nonneg_float = _number(float, 0, inclusive=True)
+_seconds = _number(float, 0, inclusive=False, maximum=86_400)  # an episode: up to a day
 
 
 def _joint_gains(minimum: float, inclusive: bool) -> Callable[[str], "float | tuple[float, ...]"]:
@@ -89,6 +115,25 @@ def _leg_order(text: str) -> tuple[str, ...]:
     if sorted(order) != sorted(FOOT_NAMES):
         raise argparse.ArgumentTypeError(f"expected FR, FL, RR and RL once each, comma-separated; got {text!r}")
     return order
+
+
+def _check_device(device: str) -> None:
+    """``--device``: cpu, or cuda (cuda:N) where torch sees a GPU; one line otherwise."""
+    import torch
+
+    try:
+        kind = torch.device(device).type
+    except (RuntimeError, ValueError):
+        raise UserError(f"--device {device!r:.40} is not a device: give cpu or cuda") from None
+    if kind not in ("cpu", "cuda"):
+        raise UserError(f"--device {device!r:.40}: acn-fit trains on cpu or cuda")
+    if kind == "cuda" and not torch.cuda.is_available():
+        raise UserError(f"--device {device}: torch sees no CUDA GPU on this machine; use --device cpu")
+
+
+def _given(args: argparse.Namespace, parser: argparse.ArgumentParser) -> set[str]:
+    """The options the user set to something other than their default."""
+    return {k for k, v in vars(args).items() if v != parser.get_default(k)}
 
 
 _GAINS_HELP = "; one number for every joint, or hip,thigh,calf (every leg), or 12 in the order FR, FL, RR, RL"
@@ -148,15 +193,15 @@ def collect_parser() -> argparse.ArgumentParser:
     p.add_argument("--target", default=None, choices=BACKENDS,
                    help="second simulator driven with the same actions (omit to record the source alone)")
     p.add_argument("--policy", default="trot", choices=list(POLICIES), help="built-in policy")
-    p.add_argument("--episodes", type=_positive_int, default=4)
-    p.add_argument("--seconds", type=_positive_float, default=10.0, help="episode length limit, s")
+    p.add_argument("--episodes", type=_positive_int, default=4, help="episodes to record")
+    p.add_argument("--seconds", type=_seconds, default=10.0, help="episode length limit, s")
     p.add_argument("--seed", type=_nonneg_int, default=0, help="initial states and random policies")
-    p.add_argument("--out", required=True, type=Path, help="dataset directory to create")
-    p.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
+    p.add_argument("--out", required=True, type=_out_path, help="dataset directory to create")
+    p.add_argument("--overwrite", action="store_true", help="replace --out if it is a dataset this toolkit wrote (nothing else is ever replaced)")
     p.add_argument("--workers", type=_positive_int, default=1, help="processes on this machine")
     p.add_argument("--action-mode", default="position", choices=ACTION_MODES,
                    help="position: joint targets, PD at the physics rate; torque: joint torques")
-    p.add_argument("--control-hz", type=_positive_int, default=50)
+    p.add_argument("--control-hz", type=_positive_int, default=50, help="control rate, Hz (one action per step)")
     p.add_argument("--physics-hz", type=_positive_int, default=None,
                    help="physics rate (default: the multiple of --control-hz nearest 1 kHz)")
     p.add_argument("--kp", type=_joint_gains(0, False), default=60.0, help="PD stiffness, N m/rad" + _GAINS_HELP)
@@ -180,8 +225,6 @@ def collect_config_from_args(args: argparse.Namespace):
     from acn.toolkit.collector import CollectConfig
 
     physics_hz = physics_hz_for(args.control_hz, args.physics_hz)
-    if args.corrector is not None and not args.corrector.is_dir():
-        raise UserError(f"corrector directory {args.corrector} does not exist")
     if args.corrector is not None:
         from acn.models.corrector import load_for_target
 
@@ -219,9 +262,15 @@ def collect_main(argv: list[str] | None = None) -> int:
     def body() -> int:
         from acn.datasets.record import Interrupted, record
 
+        from acn.datasets.schema import DATASET
+        from acn.toolkit.hidden import ANSWER, answer_path
+
+        check_output(args.out, DATASET, overwrite=args.overwrite, inputs=[args.corrector])
+        if args.corrector is not None:
+            check_input_dir(args.corrector, "corrector directory")
         cfg = collect_config_from_args(args)
-        if args.out.exists() and not args.overwrite:
-            raise UserError(f"output directory {args.out} exists (use --overwrite to replace it)")
+        if cfg.hidden_effects:
+            check_output(answer_path(args.out), ANSWER, flag="the answer beside --out")
         ray = _ray_config(args)
         if ray is None and args.shards > 1:
             raise UserError("--shards needs --ray (the shards are written by Ray tasks)")
@@ -240,7 +289,8 @@ def collect_main(argv: list[str] | None = None) -> int:
             path = record(cfg, args.out, workers=args.workers, overwrite=args.overwrite, on_episode=progress,
                           ray=ray, shards=args.shards, load_corrector=Corrector.load)
         except Interrupted as e:
-            where = f"kept {e.episodes} finished episode(s) in {e.path}" if e.path else "nothing was written"
+            where = f"kept {e.episodes} finished episode(s) in {e.path}" if e.path else (
+                f"the dataset in {args.out} is as it was" if args.out.exists() else "nothing was written")
             print(f"acn-collect: interrupted; {where}", file=sys.stderr)
             return EXIT_INTERRUPTED
         ends = ", ".join(f"{v} {k}" for k, v in sorted(counts.items()))
@@ -264,8 +314,8 @@ def fit_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="acn-fit", description="Fit the Action Correction Network from paired datasets written by "
                 "acn-collect; write a frozen corrector (model.safetensors + config.json + metrics.json).")
     p.add_argument("datasets", nargs="+", type=Path, help="paired dataset directories")
-    p.add_argument("--out", required=True, type=Path, help="model directory to create")
-    p.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
+    p.add_argument("--out", required=True, type=_out_path, help="model directory to create")
+    p.add_argument("--overwrite", action="store_true", help="replace --out if it is a corrector this toolkit wrote (nothing else is ever replaced)")
     p.add_argument("--model", default=None, metavar="MODEL.json",
                    help="fit on top of this model of the target simulator (e.g. acn-diagnose --save-model's): its "
                    "effects are written into the target, and the network learns what they leave (inverse only)")
@@ -274,7 +324,7 @@ def fit_parser() -> argparse.ArgumentParser:
                    "paper: learned Jacobian (the paper's, degenerate); mujoco-jacobian: J from the target")
     p.add_argument("--epochs", type=_positive_int, default=d.epochs, help="default: 30 (paper), 60 (inverse)")
     p.add_argument("--batch-size", type=_positive_int, default=d.batch_size, help="default: 256 (paper), 64 (inverse)")
-    p.add_argument("--lr", type=_positive_float, default=d.lr)
+    p.add_argument("--lr", type=_positive_float, default=d.lr, help="Adam learning rate")
     p.add_argument("--lr-schedule", default=d.lr_schedule, choices=("constant", "cosine"),
                    help="default: constant (paper), cosine (inverse)")
     p.add_argument("--lambda-l1", type=_nonneg_float, default=d.lambda_l1, help="weight of |delta_a|_1")
@@ -284,7 +334,7 @@ def fit_parser() -> argparse.ArgumentParser:
                    help="keep rows whose source-target gap is below this percentile (100: keep all; "
                    "default: 70 for paper and mujoco-jacobian, 100 for inverse)")
     p.add_argument("--val-fraction", type=_positive_float, default=d.val_fraction, help="of episodes")
-    p.add_argument("--seed", type=_nonneg_int, default=d.seed)
+    p.add_argument("--seed", type=_nonneg_int, default=d.seed, help="initialisation, batches and the validation split")
     p.add_argument("--device", default=d.device, help="cpu or cuda")
     p.add_argument("--precision", default=d.precision, choices=("auto", "bf16", "fp32"),
                    help="matmul precision in training (auto: bf16 where the hardware has it natively)")
@@ -292,7 +342,7 @@ def fit_parser() -> argparse.ArgumentParser:
                    help="finite-difference step on actions (mujoco-jacobian)")
     p.add_argument("--eval-episodes", type=_nonneg_int, default=d.eval_episodes,
                    help="closed-loop evaluation episodes from held-out initial states (0: skip)")
-    p.add_argument("--eval-seconds", type=_positive_float, default=d.eval_seconds)
+    p.add_argument("--eval-seconds", type=_seconds, default=d.eval_seconds, help="closed-loop evaluation episode length, s")
     p.add_argument("--no-oracles", action="store_true",
                    help="skip the same-state and tracking oracles in the closed-loop evaluation")
     p.add_argument("--label-iterations", type=_positive_int, default=d.label_iterations,
@@ -310,9 +360,9 @@ def fit_parser() -> argparse.ArgumentParser:
     p.add_argument("--rounds", type=_nonneg_int, default=d.rounds,
                    help="inverse: closed-loop rounds (collect with the corrector, label the visited states, refit; "
                    "default 4)")
-    p.add_argument("--round-episodes", type=_positive_int, default=d.round_episodes)
-    p.add_argument("--round-seconds", type=_positive_float, default=d.round_seconds)
-    p.add_argument("--round-epochs", type=_positive_int, default=d.round_epochs)
+    p.add_argument("--round-episodes", type=_positive_int, default=d.round_episodes, help="inverse: episodes collected per round")
+    p.add_argument("--round-seconds", type=_seconds, default=d.round_seconds, help="inverse: length of a round's episodes, s")
+    p.add_argument("--round-epochs", type=_positive_int, default=d.round_epochs, help="inverse: epochs of each round's refit")
     p.add_argument("--label-fd-eps", type=_positive_float, default=d.label_fd_eps,
                    help="inverse: finite-difference step on actions in the label solve (action units)")
     p.add_argument("--sensor-inputs", action=argparse.BooleanOptionalAction, default=d.sensor_inputs,
@@ -334,13 +384,13 @@ def fit_main(argv: list[str] | None = None) -> int:
     args = fit_parser().parse_args(argv)
 
     def body() -> int:
+        from acn.models.corrector import CORRECTOR
         from acn.models.fit import FitConfig, fit, save
 
-        if args.out.exists() and not args.overwrite:
-            raise UserError(f"model directory {args.out} exists (use --overwrite to replace it)")
+        check_output(args.out, CORRECTOR, overwrite=args.overwrite, inputs=[*args.datasets, args.model])
         for d in args.datasets:
-            if not d.is_dir():
-                raise UserError(f"dataset directory {d} does not exist")
+            check_input_dir(d, "dataset directory")
+        _check_device(args.device)
         cfg = FitConfig(variant=args.variant, hidden=args.hidden, layers=args.layers, lambda_l1=args.lambda_l1,
                         lr=args.lr, batch_size=args.batch_size, epochs=args.epochs,
                         filter_percentile=args.filter_percentile, val_fraction=args.val_fraction, seed=args.seed,
@@ -413,24 +463,26 @@ def ppo_parser() -> argparse.ArgumentParser:
                 "which is applied in the TARGET (MuJoCo) only; every --refit-every episodes F is refitted on paired "
                 "data of the current policy (the paper's Algorithm 2). Or, with --eval, reload and evaluate.")
     mode = p.add_mutually_exclusive_group(required=True)
-    mode.add_argument("--timesteps", type=_positive_int, help="train for this many PyBullet control steps in all")
+    mode.add_argument("--timesteps", type=_positive_int, help="train for this many PyBullet control steps in all; fewer than one rollout (n_steps x envs, "
+                      "2048 by default) is a quick trial: those steps, a 2-epoch refit on one 2 s paired episode and a "
+                      "final evaluation of 2 episodes of 2 s (options you set are kept)")
     mode.add_argument("--eval", type=Path, metavar="POLICY", help="evaluate a saved policy directory (DIR/policy)")
-    p.add_argument("--out", type=Path, help="run directory to create (training); --eval: a JSON file to write")
+    p.add_argument("--out", type=_out_path, help="run directory to create (training); --eval: a JSON file to write")
     p.add_argument("--corrector", type=Path, default=None,
                    help="frozen corrector directory (acn-fit output); training: F until the first refit")
     p.add_argument("--refit-every", type=_nonneg_int, default=d.refit_every, help="episodes; 0: never refit")
     p.add_argument("--eval-every", type=_nonneg_int, default=d.eval_every, help="episodes; 0: only at the end")
     p.add_argument("--eval-episodes", type=_nonneg_int, default=d.eval_episodes, help="per evaluation in training")
-    p.add_argument("--final-eval-episodes", type=_positive_int, default=d.final_eval_episodes)
+    p.add_argument("--final-eval-episodes", type=_positive_int, default=d.final_eval_episodes, help="episodes of the final evaluation, per simulator")
     p.add_argument("--variant", default=d.corrector_variant, choices=VARIANTS, help="acn-fit variant for refits")
     p.add_argument("--envs", type=_positive_int, default=d.n_envs, help="PyBullet environment processes")
-    p.add_argument("--seed", type=_nonneg_int, default=d.seed)
+    p.add_argument("--seed", type=_nonneg_int, default=d.seed, help="PPO, environments and evaluation starts")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="any other PPOConfig field, e.g. --set n_steps=512 --set hidden=64,64")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint")
-    p.add_argument("--overwrite", action="store_true", help="replace an earlier run in --out")
+    p.add_argument("--overwrite", action="store_true", help="replace --out if it is a PPO run this toolkit wrote, once the new run is complete")
     p.add_argument("--episodes", type=_positive_int, default=20, help="--eval: episodes per simulator")
-    p.add_argument("--seconds", type=_positive_float, default=None, help="--eval: episode limit (default: the policy's)")
+    p.add_argument("--seconds", type=_seconds, default=None, help="--eval: episode limit (default: the policy's)")
     p.add_argument("--oracle-episodes", type=_nonneg_int, default=0,
                    help="--eval: also the same-state oracle bound on this many episodes (optional, slow)")
     return p
@@ -448,14 +500,22 @@ def ppo_main(argv: list[str] | None = None) -> int:
 
         from acn.models.ppo import PPOConfig, Trainer, format_table, parse_overrides
 
+        from acn.models.ppo import PPO_RUN
+
         if args.out is None:
             raise UserError("--timesteps needs --out DIR")
-        if args.corrector is not None and not args.corrector.is_dir():
-            raise UserError(f"corrector directory {args.corrector} does not exist")
+        if not args.resume:
+            check_output(args.out, PPO_RUN, overwrite=args.overwrite, inputs=[args.corrector])
+        elif args.overwrite:
+            raise UserError("--resume continues the run in --out; --overwrite would replace it: give one")
+        if args.corrector is not None:
+            check_input_dir(args.corrector, "corrector directory")
         cfg = replace(PPOConfig(), timesteps=args.timesteps, refit_every=args.refit_every, eval_every=args.eval_every,
                       eval_episodes=args.eval_episodes, final_eval_episodes=args.final_eval_episodes,
                       corrector_variant=args.variant, n_envs=args.envs, seed=args.seed)
         cfg = parse_overrides(cfg, args.set)
+        cfg = cfg.sized_for_run(keep=_given(args, ppo_parser()) | {item.partition("=")[0].strip().replace("-", "_")
+                                                                  for item in args.set})
         trainer = Trainer(cfg, args.out, corrector_dir=args.corrector, resume=args.resume, overwrite=args.overwrite,
                           log=lambda line: tqdm.write(line, file=sys.stderr))
         m = trainer.run()
@@ -476,20 +536,16 @@ def ppo_main(argv: list[str] | None = None) -> int:
 def _ppo_eval(args: argparse.Namespace) -> int:
     if args.resume or args.set:
         raise UserError("--eval takes --corrector, --episodes, --seconds, --seed, --oracle-episodes and --out only")
-    if not args.eval.is_dir():
-        raise UserError(f"policy directory {args.eval} does not exist")
-    if args.corrector is not None and not args.corrector.is_dir():
-        raise UserError(f"corrector directory {args.corrector} does not exist")
-    from acn.models.ppo import evaluate_saved, format_table
+    check_input_dir(args.eval, "policy directory")
+    if args.corrector is not None:
+        check_input_dir(args.corrector, "corrector directory")
+    from acn.models.ppo import EVAL_FORMAT, PPO_EVAL, evaluate_saved, format_table, write_json
 
-    if args.out is not None and args.out.exists() and not args.overwrite:
-        raise UserError(f"{args.out} exists (use --overwrite to replace it)")
+    check_output(args.out, PPO_EVAL, inputs=[args.eval, args.corrector])
     ev = evaluate_saved(args.eval, args.corrector, args.episodes, args.seconds, args.seed, args.oracle_episodes)
     print(format_table(ev))
     if args.out is not None:
-        from acn.models.ppo import write_json
-
-        write_json(args.out, ev)
+        write_json(args.out, {"format": EVAL_FORMAT, **ev})
         print(f"wrote {args.out}")
     return 0
 
@@ -508,7 +564,7 @@ def view_parser() -> argparse.ArgumentParser:
                    "one-step prediction, residuals per joint, the error as the model's effects are added")
     p.add_argument("--diagnosis", type=Path, default=None, metavar="FILE.json",
                    help="acn-diagnose --json result: its verdict, ranking and where-summary as text (with --model)")
-    p.add_argument("--save", type=Path, default=None, metavar="OUT.rrd", help="write a .rrd instead of opening a viewer")
+    p.add_argument("--save", type=_out_path, default=None, metavar="OUT.rrd", help="write a .rrd instead of opening a viewer")
     return p
 
 
@@ -516,8 +572,11 @@ def view_main(argv: list[str] | None = None) -> int:
     args = view_parser().parse_args(argv)
 
     def body() -> int:
-        from acn.viz.view import ViewConfig, view
+        from acn.viz.view import RECORDING, ViewConfig, view
 
+        check_input_dir(args.dataset, "dataset directory")
+        check_output(args.save, RECORDING, flag="--save", inputs=[args.dataset, args.corrector, args.model,
+                                                                 args.diagnosis])
         path = view(ViewConfig(dataset=args.dataset, episodes=args.episodes, corrector=args.corrector,
                                model=args.model, diagnosis=args.diagnosis, save=args.save))
         if path is not None:
@@ -537,14 +596,14 @@ def import_parser() -> argparse.ArgumentParser:
                 "step) into a measurement dataset (LeRobot v3.0, the schema of acn-collect) that acn-diagnose reads.")
     p.add_argument("log", type=Path, nargs="+", help="the log file (.csv, .parquet, .jsonl, .h5 or .npz); several (one per run, "
                    "the same columns): read one after the other, each file's episodes apart")
-    p.add_argument("--out", required=True, type=Path, help="dataset directory to create")
+    p.add_argument("--out", required=True, type=_out_path, help="dataset directory to create")
     p.add_argument("--control-hz", required=True, type=_positive_int, help="control rate the log was recorded at")
     p.add_argument("--kp", required=True, type=_joint_gains(0, True),
                    help="joint PD stiffness the robot ran with, N m/rad" + _GAINS_HELP + "; a log with action_kp.* "
                    "columns (a hybrid command, with action_kd.*, action_vel.*, action_torque.*) sends its own per row")
     p.add_argument("--kd", required=True, type=_joint_gains(0, True), help="joint PD damping, N m s/rad" + _GAINS_HELP)
     p.add_argument("--torque-limit", required=True, type=_positive_float, help="N m, every joint")
-    p.add_argument("--action-mode", default="position", choices=ACTION_MODES)
+    p.add_argument("--action-mode", default="position", choices=ACTION_MODES, help="what the log's actions are: joint targets (position) or torques")
     p.add_argument("--physics-hz", type=_positive_int, default=None,
                    help="physics rate a model simulates it at (default: the multiple of --control-hz nearest 1 kHz)")
     p.add_argument("--map", type=Path, default=None, dest="map_file", metavar="MAP.json",
@@ -566,7 +625,7 @@ def import_parser() -> argparse.ArgumentParser:
                    help="what the logged accelerometer reads: the mean specific force over the control step before "
                    "the row (mean, the schema's) or at the row's instant (instant: a sensor sampled then, as "
                    "MuJoCo's accelerometer); default: not stated, acn-diagnose judges it from the log")
-    p.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
+    p.add_argument("--overwrite", action="store_true", help="replace --out if it is a dataset this toolkit wrote (nothing else is ever replaced)")
     return p
 
 
@@ -590,8 +649,9 @@ def import_main(argv: list[str] | None = None) -> int:
         from acn.datasets.importer import ImportConfig, import_log
         from acn.toolkit.backends.base import PHYSICS_HZ, physics_hz_for
 
-        if args.out.exists() and not args.overwrite:
-            raise UserError(f"output directory {args.out} exists (use --overwrite to replace it)")
+        from acn.datasets.schema import DATASET
+
+        check_output(args.out, DATASET, overwrite=args.overwrite, inputs=[*args.log, args.map_file])
         cfg = ImportConfig(control_hz=args.control_hz, kp=args.kp, kd=args.kd, torque_limit=args.torque_limit,
                            action_mode=args.action_mode, physics_hz=args.physics_hz, dt_tolerance=args.dt_tolerance,
                            linvel_frame=args.linvel_frame, angvel_frame=args.angvel_frame, leg_order=args.leg_order,
@@ -600,6 +660,9 @@ def import_main(argv: list[str] | None = None) -> int:
         print(f"read {r.rows} rows: {r.transitions} transitions in {r.episodes} episode(s); cut {r.cut_nonfinite} "
               f"row(s) with non-finite values, split at {r.time_breaks} wrong time step(s), dropped "
               f"{r.dropped_short} one-row segment(s)")
+        if r.cut_implausible:
+            print(f"cut {r.cut_implausible} row(s) with values no A1 can produce (first: {r.implausible_example}; "
+                  "the bounds: acn.toolkit.plausible)")
         if r.malformed:
             lines = ", ".join(r.malformed[:5]) + (", ..." if len(r.malformed) > 5 else "")
             print(f"set aside {len(r.malformed)} row(s) with another number of fields than the header "
@@ -664,9 +727,9 @@ def diagnose_parser() -> argparse.ArgumentParser:
                    help="the finest granularity an added per-joint effect may get: one value for every joint, one "
                    "per joint type, leg or joint (a finer one is kept where it predicts significantly better; "
                    f"coarser is quicker; default {d.finest})")
-    p.add_argument("--save-model", type=Path, default=None, metavar="FILE", help="write the updated model JSON")
-    p.add_argument("--json", type=Path, default=None, metavar="FILE", help="write the machine-readable result")
-    p.add_argument("--report", type=Path, default=None, metavar="FILE.html", help="write the HTML report")
+    p.add_argument("--save-model", type=_out_path, default=None, metavar="FILE", help="write the updated model JSON")
+    p.add_argument("--json", type=_out_path, default=None, metavar="FILE", help="write the machine-readable result")
+    p.add_argument("--report", type=_out_path, default=None, metavar="FILE.html", help="write the HTML report")
     p.add_argument("--explain-corrector", type=Path, default=None, metavar="DIR",
                    help="explain a corrector from acn-fit: which effects its corrections look like")
     p.add_argument("--list-effects", action="store_true", help="print the catalogue of effects and exit")
@@ -678,7 +741,7 @@ def diagnose_parser() -> argparse.ArgumentParser:
     p.add_argument("--closed-loop", type=_nonneg_int, default=0, metavar="N",
                    help="then re-run the measured robot (an acn-collect dataset) from N held-out initial states beside "
                    "the model as given, with --corrector and with the added effects: divergence, eps_transfer, falls")
-    p.add_argument("--closed-loop-seconds", type=_positive_float, default=5.0, help="episode length, s")
+    p.add_argument("--closed-loop-seconds", type=_seconds, default=5.0, help="episode length, s")
     p.add_argument("--corrector", type=Path, default=None, metavar="DIR",
                    help="with --closed-loop: also run the model with this corrector (acn-fit output)")
     p.add_argument("--no-oracles", action="store_true", help="with --closed-loop: skip the oracle bounds")
@@ -688,9 +751,28 @@ def diagnose_parser() -> argparse.ArgumentParser:
                    help="one diagnosis step, s of control steps (rounded, at least one; 0: one control step): "
                    "at high control rates one control step moves the robot less than its sensor noise")
     p.add_argument("--effects", default=None, help="comma-separated candidates (default: the whole catalogue)")
-    p.add_argument("--seed", type=_nonneg_int, default=d.seed)
+    p.add_argument("--seed", type=_nonneg_int, default=d.seed, help="the held-out split and random starts")
     _add_ray_arguments(p, "the re-simulation batches (measured states, candidate fits; rows in chunks)")
     return p
+
+
+def _check_diagnose_outputs(args: argparse.Namespace) -> None:
+    """``--json``, ``--report`` and ``--save-model``: each a path of its own, checked before the run."""
+    from acn.models.diagnose.report import DIAGNOSIS_JSON, REPORT
+    from acn.toolkit.effects.model import MODEL_FILE
+
+    inputs = [args.measured, args.corrector, args.explain_corrector]
+    if args.model not in ("mujoco", "pybullet"):
+        inputs.append(args.model)
+    named: dict[Path, str] = {}
+    for flag, path, kind in (("--json", args.json, DIAGNOSIS_JSON), ("--report", args.report, REPORT),
+                             ("--save-model", args.save_model, MODEL_FILE)):
+        if check_output(path, kind, flag=flag, inputs=inputs) is None:
+            continue
+        key = Path(os.path.abspath(path))
+        if key in named:
+            raise UserError(f"{flag} and {named[key]} name the same file {path}; give each its own")
+        named[key] = flag
 
 
 def diagnose_main(argv: list[str] | None = None) -> int:
@@ -716,8 +798,8 @@ def diagnose_main(argv: list[str] | None = None) -> int:
         candidates = EFFECT_NAMES if args.effects is None else tuple(args.effects.split(","))
         for name in (*candidates, *args.add):
             get_effect(name)
-        if not args.measured.is_dir():
-            raise UserError(f"measurement dataset {args.measured} does not exist")
+        check_input_dir(args.measured, "measurement dataset")
+        _check_diagnose_outputs(args)
         if args.corrector is not None and not args.closed_loop:
             raise UserError("--corrector is run in closed loop: give --closed-loop N as well")
         args.limits = args.limits or args.limits_per_joint
@@ -725,8 +807,9 @@ def diagnose_main(argv: list[str] | None = None) -> int:
             raise UserError("--limits and --explain-corrector are separate questions: ask one at a time")
         if args.closed_loop and args.explain_corrector is not None:
             raise UserError("--closed-loop and --explain-corrector are separate questions: ask one at a time")
-        if args.corrector is not None and not args.corrector.is_dir():
-            raise UserError(f"corrector directory {args.corrector} does not exist")
+        for corrector in (args.corrector, args.explain_corrector):
+            if corrector is not None:
+                check_input_dir(corrector, "corrector directory")
         model = Model.parse(args.model)
         cfg = DiagnoseConfig(horizons=horizons, candidates=candidates, seed=args.seed,
                              step_seconds=args.step_seconds if args.step_seconds != 0 else None,

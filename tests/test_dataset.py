@@ -178,7 +178,9 @@ def test_nothing_is_written_when_every_episode_blows_up_at_once(tmp_path):
 def test_existing_output_is_refused_and_overwrite_replaces_it(tmp_path, small_config):
     out = tmp_path / "x"
     out.mkdir()
-    with pytest.raises(FileExistsError):
+    from acn.errors import UserError
+
+    with pytest.raises(UserError, match="exists"):
         record(small_config, out)
     path = record(CollectConfig(target="mujoco", episodes=1, seconds=0.1), out, overwrite=True)
     assert load(path).num_episodes == 1

@@ -51,6 +51,7 @@ import numpy as np
 from acn.datasets import checks, naming, schema
 from acn.errors import UserError
 from acn.jsonfile import read_json
+from acn.toolkit import plausible
 from acn.toolkit.actuation import position_targets
 from acn.toolkit.backends.base import IMU_ACC_KINDS, joint_gains, physics_hz_for
 from acn.toolkit.collector import FALL_RULE, Episode, Trace, fallen
@@ -104,6 +105,23 @@ class ImportConfig:
     # the row (``SimConfig.imu_acc``); None: not stated, acn-diagnose judges it from the log
 
 
+def _implausible(state: np.ndarray, present: np.ndarray, action: np.ndarray, effort: np.ndarray | None,
+                 action_mode: str) -> tuple[np.ndarray, str]:
+    """Rows with a value no A1 can produce (``acn.toolkit.plausible``), and the first such value."""
+    parts = [(state[:, present], plausible.STATE_BOUND[present], tuple(np.array(STATE_NAMES)[present])),
+             (action, plausible.action_bound(action_mode, action.shape[1]), plausible.action_names(action.shape[1]))]
+    if effort is not None:
+        parts.append((effort, plausible.EFFORT_BOUND, tuple(f"effort.{j}" for j in ACTION_NAMES)))
+    rows = np.zeros(len(state), dtype=bool)
+    examples: list[tuple[int, str, float]] = []
+    for values, bound, names in parts:
+        rows |= plausible.beyond(values, bound)
+        if (first := plausible.first_beyond(values, bound, names)) is not None:
+            examples.append(first)
+    row, name, value = min(examples) if examples else (0, "", 0.0)
+    return rows, f"{name} = {value:.3g} in row {row + 1}" if examples else ""
+
+
 @dataclass
 class ImportReport:
     rows: int
@@ -124,6 +142,8 @@ class ImportReport:
     malformed: list[str] = field(default_factory=list)  # CSV lines set aside ("file:line" of several files; read_table)
     text_rows: int = 0     # rows with text among numbers, read as NaN (cut where a channel reads it)
     text_example: str = ""
+    cut_implausible: int = 0  # rows with a value no A1 can produce (``acn.toolkit.plausible``)
+    implausible_example: str = ""  # the first such value, "column = value in row N"
 
     def quaternion_hint(self) -> str | None:
         """A line where the orientation came from a quaternion and a check finds the trunk's
@@ -453,6 +473,9 @@ def import_log(log: str | Path | list[str | Path], out: str | Path, cfg: ImportC
         & np.isfinite(episode)
     if has_effort:
         good &= np.isfinite(effort).all(1)
+    absurd, absurd_example = _implausible(state, present, action, effort if has_effort else None, cfg.action_mode)
+    absurd &= good
+    good &= ~absurd
 
     period = 1.0 / cfg.control_hz
     _check_contiguous(episode)
@@ -490,7 +513,8 @@ def import_log(log: str | Path | list[str | Path], out: str | Path, cfg: ImportC
             writer.write(Episode(writer.num_episodes, timestamp[now] - timestamp[now[0]], trace, None, reason))
             transitions += len(now)
         report = ImportReport(rows=n, transitions=transitions, episodes=writer.num_episodes,
-                              cut_nonfinite=int((~good).sum()), time_breaks=reasons.get("split_time_gap", 0),
+                              cut_nonfinite=int((~good).sum() - absurd.sum()), cut_implausible=int(absurd.sum()),
+                              implausible_example=absurd_example, time_breaks=reasons.get("split_time_gap", 0),
                               dropped_short=dropped, missing=missing,
                               findings=checks.check(written, period, cfg.action_mode), step_spread=spread,
                               hybrid=hybrid, quaternion=quaternion, partial_effort=partial_effort, unused=unused,
@@ -499,6 +523,7 @@ def import_log(log: str | Path | list[str | Path], out: str | Path, cfg: ImportC
         writer.meta.info[schema.ACN_KEY]["import"] = {"file": logs[0].name, "files": [p.name for p in logs],
                           "rows": n, "transitions": transitions,
                           "rows_cut_nonfinite": report.cut_nonfinite,
+                          "rows_cut_implausible": report.cut_implausible,
                           "rows_malformed": len(report.malformed), "rows_with_text": report.text_rows,
                           "time_step_breaks": report.time_breaks,
                           "time_step_spread": round(spread, 4), "hybrid_command": hybrid,
@@ -508,7 +533,8 @@ def import_log(log: str | Path | list[str | Path], out: str | Path, cfg: ImportC
                           "checks": [f.to_json() for f in report.findings]}
         if writer.num_episodes == 0:
             raise UserError(f"{log}: no two consecutive good rows at {cfg.control_hz} Hz: nothing to import "
-                            f"({report.cut_nonfinite} non-finite rows, {report.time_breaks} time-step breaks)")
+                            f"({report.cut_nonfinite} non-finite rows, {report.cut_implausible} with values no A1 can "
+                            f"produce, {report.time_breaks} time-step breaks)")
         path = writer.commit()
     except BaseException:
         writer.abort()

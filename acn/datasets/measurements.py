@@ -19,8 +19,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from acn.datasets import schema
-from acn.datasets.reader import read_columns, read_info
+from acn.datasets.reader import read_columns, read_info, refuse_implausible
 from acn.errors import UserError
+from acn.toolkit import plausible
 from acn.toolkit.actuation import position_targets
 from acn.toolkit.backends import SimConfig
 from acn.toolkit.state import ACTION_DIM, GROUPS, SLICES, STATE_NAMES
@@ -162,7 +163,14 @@ def load_measurements(path: str | Path, side: str = "source") -> Measurements:
     if lacking:
         raise UserError(f"{path} has no {' or '.join(lacking)} channels: a diagnosis needs joint positions and actions")
     if not np.isfinite(action).all():
-        raise UserError(f"{path} has non-finite actions")
+        row = int(np.argwhere(~np.isfinite(action))[0][0])
+        raise UserError(f"{path}: episode {int(cols['episode_index'][row])} has non-finite actions")
+    if not np.isfinite(state[:, [i for i, n in enumerate(STATE_NAMES) if n not in missing]]).any():
+        raise UserError(f"{path}: every state is non-finite (NaN or inf): nothing to compare")
+    refuse_implausible(path, cols["episode_index"], [
+        ("state", state, plausible.STATE_BOUND, STATE_NAMES), ("next state", next_state, plausible.STATE_BOUND, STATE_NAMES),
+        ("action", action, plausible.action_bound(acn["action_mode"], action.shape[1]),
+         plausible.action_names(action.shape[1]))])
     control = schema.control_config(acn, hybrid=hybrid)
     who = (acn.get(side) or {}).get("simulator") or side
     return Measurements(state, action, next_state, effort, cols["episode_index"].astype(np.int64),

@@ -14,18 +14,45 @@ import logging
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
 from acn.datasets import schema
 from acn.errors import UserError
 from acn.jsonfile import read_json
-from acn.toolkit.state import ACTION_DIM, STATE_DIM, WRAPPED_INDEX, wrap_angle
+from acn.toolkit import plausible
+from acn.toolkit.state import ACTION_DIM, ACTION_NAMES, STATE_DIM, STATE_NAMES, WRAPPED_INDEX, wrap_angle
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
-# What must agree between datasets that are fitted together.
-_MUST_MATCH = ("state_names", "action_names", "physics_dt", "substeps", "action_mode", "kp", "kd", "torque_limit")
+def _direction(info: dict) -> str:
+    acn = info[schema.ACN_KEY]
+    return f"{acn['source']['simulator']} -> {(acn.get('target') or {}).get('simulator')}"
+
+
+# What must agree between datasets that are fitted together: (field as a message names it, its value).
+MUST_MATCH: tuple[tuple[str, Callable[[dict], object]], ...] = (
+    ("direction (source -> target)", _direction),
+    ("robot", lambda info: info.get("robot_type")),
+    ("--control-hz", lambda info: info[schema.ACN_KEY]["control_hz"]),
+    ("--physics-hz", lambda info: round(1.0 / info[schema.ACN_KEY]["physics_dt"], 6)),
+    ("--action-mode", lambda info: info[schema.ACN_KEY]["action_mode"]),
+    ("--kp", lambda info: info[schema.ACN_KEY]["kp"]),
+    ("--kd", lambda info: info[schema.ACN_KEY]["kd"]),
+    ("--torque-limit", lambda info: info[schema.ACN_KEY]["torque_limit"]),
+    ("state channels", lambda info: info[schema.ACN_KEY]["state_names"]),
+    ("joint names", lambda info: info[schema.ACN_KEY]["action_names"]),
+)
+
+
+def refuse_mixed(paths: list[Path], infos: list[dict]) -> None:
+    """One line naming both datasets and the field where datasets fitted together disagree."""
+    for path, info in zip(paths[1:], infos[1:]):
+        for what, value in MUST_MATCH:
+            if value(info) != value(infos[0]):
+                raise UserError(f"{path} and {paths[0]} do not belong together: {what} {value(info)!r:.60} vs "
+                                f"{value(infos[0])!r:.60}")
 
 
 def read_info(path: str | Path) -> dict:
@@ -131,28 +158,45 @@ def percentile_filter(gap: np.ndarray, percentile: float = 70.0) -> np.ndarray:
     return gap < np.percentile(gap, percentile)
 
 
+def refuse_implausible(path: Path, episode: np.ndarray, parts: list[tuple[str, np.ndarray, object, tuple]]) -> None:
+    """One line naming the episode and column of the first value no A1 can produce
+    (``acn.toolkit.plausible``) in ``parts``: (what, values, bound, column names) each."""
+    for what, values, bound, names in parts:
+        first = plausible.first_beyond(values, bound, names)
+        if first is not None:
+            row, name, value = first
+            raise UserError(f"{path}: episode {int(episode[row])} has {what} {name} = {value:.3g}, which no A1 can "
+                            "produce (acn-import cuts such rows; the bounds are in acn.toolkit.plausible)")
+
+
 def load_paired(paths: list[str | Path]) -> PairedTransitions:
     """Read paired datasets written by ``acn-collect`` (see module docstring)."""
     if not paths:
         raise UserError("no dataset given")
-    parts, first, episode_offset, skipped = [], None, 0, 0
-    for path in paths:
-        path = Path(path)
-        info = read_info(path)
-        acn = info[schema.ACN_KEY]
-        if not acn.get("paired"):
+    paths = [Path(p) for p in paths]
+    infos = [read_info(p) for p in paths]
+    for path, info in zip(paths, infos):
+        if not info[schema.ACN_KEY].get("paired"):
             raise UserError(f"{path} is not a paired dataset (recorded without --target)")
-        if first is None:
-            first = acn
-        for key in _MUST_MATCH:
-            if acn.get(key) != first.get(key):
-                raise UserError(f"{path} differs from {paths[0]} in {key}: {acn.get(key)!r} vs {first.get(key)!r}")
+    refuse_mixed(paths, infos)
+    first = infos[0][schema.ACN_KEY]
+    parts, episode_offset, skipped = [], 0, 0
+    for path, info in zip(paths, infos):
+        acn = info[schema.ACN_KEY]
         keys = [schema.STATE, schema.ACTION, schema.NEXT_STATE, schema.target_key(schema.STATE),
                 schema.target_key(schema.ACTION), schema.target_key(schema.NEXT_STATE)]
         cols, _ = read_columns(path, keys + ["episode_index"])
         arrays = [cols[k] for k in keys]
+        mode = acn["action_mode"]
+        refuse_implausible(path, cols["episode_index"], [
+            (f"{side}state", cols[side + schema.STATE], plausible.STATE_BOUND, STATE_NAMES)
+            for side in ("", schema.TARGET_PREFIX)] + [
+            (f"{side}action", cols[side + schema.ACTION], plausible.action_bound(mode, ACTION_DIM), ACTION_NAMES)
+            for side in ("", schema.TARGET_PREFIX)])
         episode = np.asarray(cols["episode_index"], dtype=np.int64) + episode_offset
         finite = np.all([np.isfinite(a).all(axis=1) for a in arrays], axis=0)
+        if len(finite) and not finite.any():
+            raise UserError(f"{path}: every row has a non-finite state or action (NaN or inf): nothing to read")
         skipped += int((~finite).sum())
         parts.append([a[finite] for a in arrays] + [episode[finite]])
         episode_offset = int(episode.max()) + 1 if len(episode) else episode_offset

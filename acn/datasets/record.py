@@ -9,8 +9,10 @@ the same work as one pure call, which Ray runs instead with ``ray=RayConfig(...)
 the same writer loop, so the dataset is byte-identical to a local one with the same seed).
 ``shards=K`` (Ray only) writes K datasets in parallel and merges them (``acn.datasets.shards``).
 
-Ctrl-C or SIGTERM stops the collection: the finished episodes are committed as a valid
-dataset (or nothing is written if none finished) and ``Interrupted`` is raised.
+Ctrl-C or SIGTERM stops the collection and raises ``Interrupted``. Into a new ``out``, the
+finished episodes are committed as a valid dataset (nothing is written if none finished). Over
+an existing dataset (``overwrite``), nothing of the interrupted run is kept: the dataset there
+stays as it was, since only a complete collection replaces it.
 """
 
 from __future__ import annotations
@@ -163,6 +165,7 @@ def _record(cfg: CollectConfig, out: str | Path, episodes: Iterator[Episode], pr
             on_episode: Callable[[Episode], None] | None) -> Path:
     """The writer loop: ``episodes`` (in order, from processes or Ray) into one dataset at ``out``."""
     task = f"{cfg.policy} ({cfg.source}" + (f" -> {cfg.target})" if cfg.target else ")")
+    replacing = Path(out).exists()  # interrupted, the dataset there stays as it was
     writer = DatasetWriter(out, fps=int(round(1.0 / cfg.sim.control_dt)), paired=cfg.paired, task=task,
                            acn_meta=collection_metadata(cfg), overwrite=overwrite)
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
@@ -173,7 +176,7 @@ def _record(cfg: CollectConfig, out: str | Path, episodes: Iterator[Episode], pr
                 on_episode(ep)
     except KeyboardInterrupt:
         _stop(procs)
-        path = _commit_quietly(writer, cfg) if writer.num_episodes else None
+        path = _commit_quietly(writer, cfg) if writer.num_episodes and not replacing else None
         if path is None:
             writer.abort()
         episodes.close()  # after the commit: the finished episodes are safe whatever closing does
@@ -201,7 +204,7 @@ def _stop(procs: list) -> None:
 def _commit_quietly(writer: DatasetWriter, cfg: CollectConfig) -> Path:
     """Commit with SIGINT/SIGTERM held off, so a second Ctrl-C cannot tear the rename; then the
     answer to hidden effects goes beside the dataset (a stale answer from an overwritten one goes)."""
-    from acn.toolkit.hidden import answer_path, write_answer
+    from acn.toolkit.hidden import ANSWER, answer_path, write_answer
 
     old_int = signal.signal(signal.SIGINT, signal.SIG_IGN)
     old_term = signal.signal(signal.SIGTERM, signal.SIG_IGN)
@@ -209,8 +212,8 @@ def _commit_quietly(writer: DatasetWriter, cfg: CollectConfig) -> Path:
         path = writer.commit()
         if cfg.hidden_effects:
             write_answer(path, cfg.hidden_effects, cfg.seed)
-        else:
-            answer_path(path).unlink(missing_ok=True)
+        elif ANSWER.recognise(answer_path(path)):  # a stale answer of the dataset this one replaced
+            answer_path(path).unlink()
         return path
     finally:
         signal.signal(signal.SIGINT, old_int)

@@ -24,8 +24,10 @@ mode, gains, policy, seed, channel names, the fall rule and how each episode end
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import TYPE_CHECKING
 
+from acn.outputs import Output, json_object
 from acn.toolkit.state import ACTION_DIM, ACTION_NAMES, STATE_DIM, STATE_NAMES
 
 if TYPE_CHECKING:
@@ -45,6 +47,15 @@ DONE = "next.done"
 ACTION_HYBRID = "action.hybrid"
 HYBRID_NAMES = tuple(f"{g}.{j}" for g in ("kp", "kd", "vel", "torque") for j in ACTION_NAMES)
 PER_SIMULATOR = (STATE, ACTION, EFFORT, NEXT_STATE, NEXT_FALLEN)
+
+
+def is_dataset(path: Path) -> bool:
+    """``path`` is a dataset this toolkit wrote: its ``meta/info.json`` has an ``acn`` block."""
+    info = json_object(Path(path) / "meta" / "info.json")
+    return info is not None and isinstance(info.get(ACN_KEY), dict)
+
+
+DATASET = Output("dataset directory", directory=True, recognise=is_dataset)
 
 
 def target_key(key: str) -> str:

@@ -28,6 +28,7 @@ from typing import Callable
 import numpy as np
 
 from acn.atomic import move_into_place, temporary_beside
+from acn.outputs import refuse_foreign
 from acn.datasets import schema
 from acn.datasets.record import Interrupted, _commit_quietly, _raise_interrupt, record
 from acn.toolkit.collector import CollectConfig
@@ -111,8 +112,8 @@ def record_shards(cfg: CollectConfig, out: str | Path, shards: int, ray_config: 
 
     ray = import_ray()
     out = Path(out).absolute()
-    if out.exists() and not overwrite:
-        raise FileExistsError(f"output directory {out} exists (use --overwrite to replace it)")
+    refuse_foreign(out, schema.DATASET, overwrite)
+    replacing = out.exists()  # interrupted, the dataset there stays as it was
     ranges = [r.tolist() for r in np.array_split(np.arange(cfg.episodes), min(shards, cfg.episodes))]
     work = out.parent / f".{out.name}.shards-{os.getpid()}"
     shutil.rmtree(work, ignore_errors=True)
@@ -150,7 +151,7 @@ def record_shards(cfg: CollectConfig, out: str | Path, shards: int, ray_config: 
             ray.cancel(ref)  # the shard's record commits its finished episodes
         ray.wait(refs, num_returns=len(refs), timeout=CANCEL_WAIT_S)
         done = [p for p in paths if (p / "meta" / "info.json").is_file()]
-        path = _commit_quietly(_Merge(done, out), cfg) if done else None
+        path = _commit_quietly(_Merge(done, out), cfg) if done and not replacing else None
         raise Interrupted(path, len(load_info(path)[schema.ACN_KEY]["episodes"]) if path else 0) from None
     except BaseException:
         for ref in refs:

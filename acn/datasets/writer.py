@@ -27,6 +27,7 @@ import pyarrow.parquet as pq
 from acn.atomic import move_into_place, temporary_beside
 from acn.datasets import schema
 from acn.errors import UserError
+from acn.outputs import refuse_foreign
 from acn.toolkit.collector import Episode, Trace
 from acn.toolkit.state import ACTION_DIM
 
@@ -86,8 +87,7 @@ class DatasetWriter:
         from lerobot.datasets.utils import get_hf_features_from_features
 
         self.root = Path(root).absolute()
-        if self.root.exists() and not overwrite:
-            raise FileExistsError(f"output directory {self.root} exists (use --overwrite to replace it)")
+        refuse_foreign(self.root, schema.DATASET, overwrite)
         self.root.parent.mkdir(parents=True, exist_ok=True)
         self._tmp = temporary_beside(self.root)
         self.paired, self.task = paired, task

@@ -18,11 +18,15 @@ from torch import nn
 
 from acn.errors import UserError
 from acn.jsonfile import read_json
+from acn.outputs import Output, json_with_format
 from acn.models.acn import LEARNED_JACOBIAN, OUTPUT_CHANNELS, ActionCorrectionNetwork, input_channels
 from acn.toolkit.state import ACTION_DIM, STATE_DIM, STATE_NAMES
 
 WEIGHTS, CONFIG = "model.safetensors", "config.json"
 FORMAT = "acn-corrector/1"
+# A corrector directory is recognised by its card (config.json with this format).
+CORRECTOR = Output("corrector directory", directory=True,
+                   recognise=lambda d: json_with_format(FORMAT.split("/")[0] + "/")(d / CONFIG))
 
 
 class Corrector(nn.Module):

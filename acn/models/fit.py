@@ -58,10 +58,11 @@ from acn.errors import UserError
 from acn.models.acn import (INPUT_CHANNELS, LABELLED, OUTPUT_CHANNELS, VARIANTS, acn_loss, acn_loss_and_grad,
                             input_channels, regression_loss, regression_loss_and_grad)
 from acn.models.backprop import AdamStep, FlatMLPs
-from acn.models.corrector import Corrector, default_config
+from acn.models.corrector import CORRECTOR, Corrector, default_config
 from acn.models.evaluate import output_spread
 from acn.models.labels import Solution, SolveConfig
 from acn.models.threads import AdaptiveThreads, torch_threads
+from acn.outputs import refuse_foreign
 from acn.toolkit.policies import POLICIES
 from acn.toolkit.state import STATE_NAMES
 
@@ -788,8 +789,7 @@ def save(model: Corrector, metrics: dict, out: str | Path, overwrite: bool = Fal
     import json
 
     out = Path(out).absolute()
-    if out.exists() and not overwrite:
-        raise UserError(f"model directory {out} exists (use --overwrite to replace it)")
+    refuse_foreign(out, CORRECTOR, overwrite)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = temporary_beside(out)
     tmp.mkdir()

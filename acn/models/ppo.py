@@ -39,7 +39,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 import shutil
 import sys
 import time
@@ -57,8 +56,9 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor, VecNormalize
 from torch import nn
 
-from acn.atomic import move_into_place, temporary_beside
+from acn.atomic import move_into_place, temporary_beside, write_file
 from acn.errors import UserError
+from acn.outputs import Output, check_output, json_with_format
 from acn.models.acn import INPUT_CHANNELS
 from acn.models.corrector import Corrector, load_for_target
 from acn.models.threads import torch_threads
@@ -72,6 +72,16 @@ from acn.toolkit.policies import POLICIES
 from acn.toolkit.reward import REWARD_WEIGHTS
 from acn.toolkit.state import STATE_NAMES
 
+RUN_MANIFEST, RUN_FORMAT, EVAL_FORMAT = "run.json", "acn-ppo-run/1", "acn-ppo-eval/1"
+
+
+def _is_run(path: Path) -> bool:
+    """A PPO run directory this toolkit wrote: its manifest, or a run's checkpoint state."""
+    return json_with_format("acn-ppo-run/")(path / RUN_MANIFEST) or (path / "checkpoint" / "state.json").is_file()
+
+
+PPO_RUN = Output("PPO run directory", directory=True, recognise=_is_run)
+PPO_EVAL = Output("PPO evaluation JSON", directory=False, recognise=json_with_format("acn-ppo-eval/"))
 REFIT_SEED_BASE = 2_000_000  # initial states of refit data: never training's or evaluation's
 
 
@@ -126,6 +136,20 @@ class PPOConfig:
     fit_epochs: int = 30
     oracle_episodes: int = 20           # OPTIONAL same-state oracle bound, final evaluation only (slow;
     #                                     only where acn.models.evaluate offers same_state_oracle)
+
+    def sized_for_run(self, keep: set[str] = frozenset()) -> "PPOConfig":
+        """This config with a short run kept short. A run of fewer ``timesteps`` than one rollout
+        (``n_steps`` x ``n_envs``, 2,048 by default) is a trial of the plumbing: it collects its steps
+        in one rollout, refits on one 2 s paired episode for 2 epochs, and evaluates 2 episodes of
+        2 s; a longer run is unchanged. Fields named in ``keep`` (set by the user) are left as they are."""
+        if self.timesteps >= self.n_steps * self.n_envs:
+            return self
+        n_steps = max(2, math.ceil(self.timesteps / self.n_envs))
+        small = dict(n_steps=n_steps, batch_size=min(self.batch_size, n_steps * self.n_envs), final_eval_episodes=2,
+                     eval_seconds=2.0, eval_every=0, refit_episodes=1, refit_seconds=2.0, fit_epochs=2,
+                     oracle_episodes=0)
+        keep = {{"envs": "n_envs", "variant": "corrector_variant"}.get(k, k) for k in keep}
+        return replace(self, **{k: v for k, v in small.items() if k not in keep})
 
     def sim(self) -> SimConfig:
         return SimConfig(physics_dt=1.0 / self.physics_hz, substeps=self.physics_hz // self.control_hz,
@@ -495,11 +519,7 @@ class Trainer:
             if self.state.timesteps >= self.cfg.timesteps:
                 raise UserError(f"{self.out} already has {self.state.timesteps} timesteps; ask for more with --timesteps")
         else:
-            if self.out.exists() and any(self.out.iterdir()):
-                if not overwrite:
-                    raise UserError(f"output directory {self.out} exists (use --resume to continue it or --overwrite)")
-                if not (self.ckpt.is_dir() or (self.out / "metrics.json").is_file()):
-                    raise UserError(f"{self.out} is not an acn-ppo run directory; refusing to replace it")
+            check_output(self.out, PPO_RUN, overwrite=overwrite, inputs=[corrector_dir] if corrector_dir else [])
             self.cfg, self.state = cfg, RunState()
         if resume and corrector_dir is not None:
             raise UserError("--resume continues with the checkpoint's corrector; drop --corrector")
@@ -511,9 +531,14 @@ class Trainer:
         self.corrector: Corrector | None = None
         self.corrector_digest: str | None = None
         given = load_corrector(corrector_dir, self.env_cfg) if corrector_dir is not None else None
-        if not resume and self.out.exists():  # every input checked: only now replace an earlier run
-            shutil.rmtree(self.out)
+        # A new run over an earlier one trains beside it and replaces it only when complete (``run``):
+        # a run that fails or is interrupted leaves the earlier one as it was.
+        self.replaces: Path | None = None
+        if not resume and self.out.exists():
+            self.replaces, self.out = self.out, temporary_beside(self.out)
+            self.ckpt = self.out / "checkpoint"
         self.out.mkdir(parents=True, exist_ok=True)
+        write_file(self.out / RUN_MANIFEST, json.dumps({"format": RUN_FORMAT}) + "\n")
         if resume and self.state.correctors:
             last = self.state.correctors[-1]
             self._use_corrector(load_corrector(self.out / last["dir"], self.env_cfg), last["dir"], None)
@@ -660,8 +685,17 @@ class Trainer:
 
     # ----- the run -----------------------------------------------------------------------
     def run(self) -> dict:
-        with torch_threads(self.cfg.torch_threads):
-            return self._run()
+        try:
+            with torch_threads(self.cfg.torch_threads):
+                metrics = self._run()
+        except BaseException:
+            if self.replaces is not None:  # the earlier run stays; nothing of this one is kept
+                shutil.rmtree(self.out, ignore_errors=True)
+            raise
+        if self.replaces is not None:
+            self.out, self.replaces = move_into_place(self.out, self.replaces), None
+            self.ckpt = self.out / "checkpoint"
+        return metrics
 
     def _run(self) -> dict:
         cfg, st = self.cfg, self.state
@@ -798,11 +832,8 @@ def _json_default(o):
 
 
 def write_json(path: str | Path, data: dict) -> None:
-    """JSON (numpy scalars and arrays as numbers and lists), written to a temporary and renamed."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
-    tmp.write_text(json.dumps(data, indent=2, default=_json_default))
-    os.replace(tmp, path)
+    """JSON (numpy scalars and arrays as numbers and lists), written whole or not at all."""
+    write_file(path, json.dumps(data, indent=2, default=_json_default))
 
 
 def plot_curves(state: RunState, final: dict | None, path: Path) -> None:

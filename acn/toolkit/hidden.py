@@ -15,12 +15,13 @@ Realistic magnitudes are each parameter's ``realistic`` range (``acn.toolkit.eff
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 
+from acn.atomic import write_file
 from acn.errors import UserError
+from acn.outputs import Output, json_object
 from acn.toolkit.effects import CATALOGUE, EFFECT_NAMES, AppliedEffect, Effect, get_effect
 from acn.toolkit.state import NUM_JOINTS
 
@@ -64,6 +65,19 @@ def parse_hidden(spec: str, rng: np.random.Generator, control) -> AppliedEffect:
     return AppliedEffect(effect, effect.parse(raw, control))
 
 
+ANSWER_FORMAT = "acn-answer/1"
+
+
+def _is_answer(path: Path) -> bool:
+    d = json_object(path) if path.is_file() else None
+    return d is not None and (d.get("format") == ANSWER_FORMAT or set(d) == {"dataset", "seed", "hidden_effects"})
+
+
+# The sealed answer beside a dataset: replaced (or removed, with a dataset collected without
+# hidden effects) only where it is one the toolkit wrote.
+ANSWER = Output("hidden-effect answer", directory=False, recognise=_is_answer)
+
+
 def answer_path(dataset: str | Path) -> Path:
     """Where the answer to a hidden-effect dataset lives: ``DIR.answer.json`` beside ``DIR``."""
     d = Path(dataset)
@@ -72,9 +86,6 @@ def answer_path(dataset: str | Path) -> Path:
 
 def write_answer(dataset: str | Path, effects: list[AppliedEffect], seed: int) -> Path:
     """Write the answer file whole or not at all."""
-    path = answer_path(dataset)
-    tmp = path.parent / f".{path.name}.partial-{os.getpid()}"
-    tmp.write_text(json.dumps({"dataset": str(Path(dataset).name), "seed": seed,
-                               "hidden_effects": [e.to_json() for e in effects]}, indent=2) + "\n")
-    tmp.replace(path)
-    return path
+    return write_file(answer_path(dataset), json.dumps({"format": ANSWER_FORMAT, "dataset": str(Path(dataset).name),
+                                                        "seed": seed, "hidden_effects": [e.to_json() for e in effects]},
+                                                       indent=2) + "\n")

@@ -19,6 +19,7 @@ from pathlib import Path
 
 from acn.datasets.reader import RecordedFrames, load_frames
 from acn.errors import UserError
+from acn.outputs import Output
 from acn.viz.blueprint import build_blueprint
 from acn.viz.meshes import DEFAULT_CELL, link_meshes
 from acn.viz.trajectories import EpisodeView, check_corrector_fits, corrected_target, parse_episodes, recorded_episode
@@ -112,6 +113,18 @@ def record(rec, episodes: list[EpisodeView], mesh_cell: float = DEFAULT_CELL) ->
     kinematics, meshes = RobotKinematics(), link_meshes(mesh_cell)
     for ep in episodes:
         log_episode(rec, ep, kinematics, meshes)
+
+
+def _is_recording(path: Path) -> bool:
+    """A Rerun recording: the file starts with Rerun's magic bytes."""
+    try:
+        with open(path, "rb") as f:
+            return f.read(3) == b"RRF"
+    except OSError:
+        return False
+
+
+RECORDING = Output("Rerun recording (.rrd)", directory=False, recognise=_is_recording)
 
 
 def write_rrd(episodes: list[EpisodeView], out: Path, mesh_cell: float = DEFAULT_CELL) -> Path:

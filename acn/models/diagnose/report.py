@@ -2,6 +2,7 @@
 
 JSON keys (the machine-readable contract):
 
+- ``format``: ``"acn-diagnosis/1"`` (how the toolkit recognises a file it may replace);
 - ``verdict``: ``"none"``, ``"effect"`` or ``"unexplained"``; ``reason`` in words;
 - ``data_checks``: the measurements' own consistency findings (``acn.datasets.checks``), each
   ``check``, ``channels``, ``message``; empty when consistent;
@@ -69,12 +70,31 @@ from pathlib import Path
 
 import numpy as np
 
+from acn.atomic import write_file
 from acn.models.diagnose.add import Added, longer_gain, significant
 from acn.models.diagnose.compare import Comparison, group_errors
 from acn.models.diagnose.pipeline import Diagnosis
 from acn.models.diagnose.rank import Candidate, doubt, fits_noise, unidentified
 from acn.models.diagnose.transfer import closer_by, table as closed_loop_table
+from acn.outputs import Output, json_with_format
 from acn.toolkit.effects import EFFECT_NAMES, get_effect
+
+FORMAT = "acn-diagnosis/1"
+GENERATOR = "acn-diagnose report"
+
+
+def _is_report(path: Path) -> bool:
+    """An HTML report this toolkit wrote: its head names the generator."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(2048)
+    except OSError:
+        return False
+    return f'<meta name="generator" content="{GENERATOR}">'.encode() in head
+
+
+DIAGNOSIS_JSON = Output("diagnosis JSON", directory=False, recognise=json_with_format("acn-diagnosis/"))
+REPORT = Output("diagnosis report", directory=False, recognise=_is_report)
 
 HEADLINE = ("one-step teacher-forced prediction error on held-out rows: RMS over every compared channel of "
             "(measured - predicted) / spread of the measured one-step change (1 = as wrong as predicting no motion)")
@@ -249,6 +269,7 @@ def to_json(d: Diagnosis) -> dict:
     p = d.problem
     groups = group_errors(p, np.sqrt(d.floor)[None, :])
     return {
+        "format": FORMAT,
         "verdict": d.verdict, "reason": d.reason, "measurements": d.measurements,
         "data_checks": [f.to_json() for f in d.data_checks],
         "accelerometer": d.accelerometer.to_json() if d.accelerometer else None,
@@ -274,12 +295,7 @@ def to_json(d: Diagnosis) -> dict:
 
 
 def write_json(d: Diagnosis, path: str | Path) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.parent / f".{path.name}.partial"
-    tmp.write_text(json.dumps(to_json(d), indent=2, default=_plain) + "\n")
-    tmp.replace(path)
-    return path
+    return write_file(path, json.dumps(to_json(d), indent=2, default=_plain, allow_nan=False) + "\n")
 
 
 def _plain(o):
@@ -462,7 +478,7 @@ def write_html(d: Diagnosis, path: str | Path) -> Path:
                    + "".join(f"<li>{html.escape(f.message)}</li>" for f in d.data_checks) + "</ul>") if d.data_checks else ""
     if d.accelerometer and d.accelerometer.describe():
         checks_html += f"<p>{html.escape(d.accelerometer.describe())}.</p>"
-    body = f"""<!doctype html><html><head><meta charset="utf-8"><title>acn-diagnose: {html.escape(d.measurements)}</title>
+    body = f"""<!doctype html><html><head><meta charset="utf-8"><meta name="generator" content="{GENERATOR}"><title>acn-diagnose: {html.escape(d.measurements)}</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:4px 8px}}</style></head><body>
 <h1>Diagnosis of {html.escape(d.measurements)}</h1>
@@ -476,12 +492,7 @@ td,th{{border:1px solid #ccc;padding:4px 8px}}</style></head><body>
 {'<p>Chains of effects tried by --auto (one effect can stand in for two):</p><ul>' + chains + '</ul>' if chains else ''}
 {_limits_html(d)}{loop_html}
 <h2>Plots</h2>{''.join(parts)}</body></html>"""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.parent / f".{path.name}.partial"
-    tmp.write_text(body)
-    tmp.replace(path)
-    return path
+    return write_file(path, body)
 
 
 def _limits_html(d: Diagnosis) -> str:

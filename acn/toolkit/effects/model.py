@@ -1,6 +1,7 @@
 """A model: a backend with the shared A1 description plus physical effects, saved as JSON.
 
-    {"backend": "mujoco",
+    {"format": "acn-model/1",
+     "backend": "mujoco",
      "effects": [{"name": "actuator_latency", "params": {"seconds": 0.012}},
                  {"name": "joint_damping", "params": {"value": [0.3, 0.3, ...]}}],
      "corrector": null}
@@ -8,23 +9,27 @@
 Control settings (rates, gains, torque limit, action mode) are not part of a model: they belong
 to the measurements (each dataset's ``acn`` metadata) and are combined with the model by
 ``Model.sim_config``. Effects apply in order; adding an effect already present replaces it.
+``format`` marks a file the toolkit saved (only such a file is replaced by ``--save-model``); a
+hand-written model may leave it out.
 """
 
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from acn.atomic import write_file
 from acn.errors import UserError
 from acn.jsonfile import read_json
+from acn.outputs import Output, json_with_format
 from acn.toolkit.backends import BACKENDS, SimConfig
 from acn.toolkit.effects.catalogue import get_effect
 from acn.toolkit.effects.effect import AppliedEffect, Effect, Values
 from acn.toolkit.robot import ModelParams
 
-MODEL_KEYS = ("backend", "effects", "corrector")
+MODEL_KEYS = ("format", "backend", "effects", "corrector")
+FORMAT = "acn-model/1"  # written into every model file the toolkit saves; a hand-written one may omit it
 EFFECT_KEYS = ("name", "params")
 
 
@@ -59,7 +64,8 @@ class Model:
 
     # ----- JSON -----------------------------------------------------------------------------
     def to_json(self) -> dict:
-        return {"backend": self.backend, "effects": [t.to_json() for t in self.effects], "corrector": self.corrector}
+        return {"format": FORMAT, "backend": self.backend, "effects": [t.to_json() for t in self.effects],
+                "corrector": self.corrector}
 
     @classmethod
     def from_json(cls, d: dict, where: str = "model") -> "Model":
@@ -74,7 +80,12 @@ class Model:
         effects_raw = d.get("effects", [])
         if not isinstance(effects_raw, list):
             raise UserError(f"{where}: 'effects' must be a list")
-        model = cls(backend=backend, corrector=d.get("corrector"))
+        if "format" in d and d["format"] != FORMAT:
+            raise UserError(f"{where}: format {d['format']!r:.40} is not {FORMAT!r}")
+        corrector = d.get("corrector")
+        if corrector is not None and not (isinstance(corrector, str) and corrector.strip()):
+            raise UserError(f"{where}: 'corrector' must be null or a corrector directory path, got {corrector!r:.40}")
+        model = cls(backend=backend, corrector=corrector)
         for e in effects_raw:
             if not isinstance(e, dict) or "name" not in e:
                 raise UserError(f"{where}: each effect is an object with 'name' and 'params'")
@@ -101,13 +112,13 @@ class Model:
 
     def save(self, path: str | Path) -> Path:
         """Write the JSON file whole or not at all."""
-        p = Path(path)
-        p.parent.mkdir(parents=True, exist_ok=True)
-        tmp = p.parent / f".{p.name}.partial-{os.getpid()}"
-        tmp.write_text(json.dumps(self.to_json(), indent=2) + "\n")
-        tmp.replace(p)
-        return p
+        return write_file(path, json.dumps(self.to_json(), indent=2) + "\n")
 
 
 def _short(v) -> str:
     return f"{v:.4g}" if isinstance(v, float) else "[" + ", ".join(f"{x:.3g}" for x in v) + "]"
+
+
+# A model file the toolkit saved (``--save-model``): recognised by its format, so a hand-written
+# model is never replaced.
+MODEL_FILE = Output("model file", directory=False, recognise=json_with_format("acn-model/"))
