@@ -1,9 +1,13 @@
-"""Reading a JSON file a user gave: a one-line ``UserError`` when it is missing or unreadable."""
+"""JSON files: reading one a user gave (a one-line ``UserError`` when it is missing or unreadable),
+and ``strict_json``, what the toolkit writes (no NaN or infinity, which strict readers refuse)."""
 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
+
+import numpy as np
 
 from acn.errors import UserError
 
@@ -18,3 +22,20 @@ def read_json(path: str | Path, missing: str):
         return json.loads(p.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise UserError(f"{p} is not valid JSON: {e}") from None
+
+
+def strict_json(o):
+    """``o`` as strict JSON values: numpy numbers and arrays as plain ones, non-finite floats as None."""
+    if isinstance(o, dict):
+        return {k: strict_json(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [strict_json(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return strict_json(o.tolist())
+    if isinstance(o, np.bool_):
+        return bool(o)
+    if isinstance(o, (float, np.floating)):
+        return float(o) if math.isfinite(o) else None
+    if isinstance(o, np.integer):
+        return int(o)
+    return o

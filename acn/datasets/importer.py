@@ -342,7 +342,10 @@ def _preamble(path: Path) -> tuple[int, str, str]:
     import pyarrow as pa
 
     with pa.input_stream(str(path), compression="detect") as f:  # the first MiB holds the header and a row
-        lines = iter(f.read(1 << 20).decode("utf-8-sig", errors="replace").splitlines())
+        head = f.read(1 << 20)
+        if b"\0" in head or head[:4096].decode("utf-8-sig", errors="replace").count("\ufffd") > 8:
+            raise UserError(f"{path} is not a text CSV file (binary data in its first bytes)")
+        lines = iter(head.decode("utf-8-sig", errors="replace").splitlines())
         lines = (line.strip() for line in lines)
         for skipped, line in enumerate(lines):
             if line and not line.startswith("#"):

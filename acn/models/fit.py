@@ -55,6 +55,7 @@ import torch
 from acn.atomic import move_into_place, temporary_beside
 from acn.datasets.reader import PairedTransitions, load_paired, percentile_filter
 from acn.errors import UserError
+from acn.jsonfile import strict_json
 from acn.models.acn import (INPUT_CHANNELS, LABELLED, OUTPUT_CHANNELS, VARIANTS, acn_loss, acn_loss_and_grad,
                             input_channels, regression_loss, regression_loss_and_grad)
 from acn.models.backprop import AdamStep, FlatMLPs
@@ -766,22 +767,7 @@ def _summary(m: dict) -> dict:
                                                  "delta_corr", "verdict") if k in cl}
         out["closed_loop"]["runs"] = {name: {k: run[k] for k in ("divergence", "eps_transfer", "target_falls")}
                                       for name, run in cl["runs"].items()}
-    return _finite(out)
-
-
-def _finite(o):
-    """Metrics as strict JSON: non-finite floats become None."""
-    if isinstance(o, dict):
-        return {k: _finite(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_finite(v) for v in o]
-    if isinstance(o, (float, np.floating)):
-        return float(o) if math.isfinite(o) else None
-    if isinstance(o, np.integer):
-        return int(o)
-    if isinstance(o, np.ndarray):
-        return _finite(o.tolist())
-    return o
+    return strict_json(out)
 
 
 def save(model: Corrector, metrics: dict, out: str | Path, overwrite: bool = False) -> Path:
@@ -795,7 +781,7 @@ def save(model: Corrector, metrics: dict, out: str | Path, overwrite: bool = Fal
     tmp.mkdir()
     try:
         model.save(tmp)
-        (tmp / "metrics.json").write_text(json.dumps(_finite(metrics), indent=2, allow_nan=False))
+        (tmp / "metrics.json").write_text(json.dumps(strict_json(metrics), indent=2, allow_nan=False))
         return move_into_place(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -71,6 +71,7 @@ from pathlib import Path
 import numpy as np
 
 from acn.atomic import write_file
+from acn.jsonfile import strict_json
 from acn.models.diagnose.add import Added, longer_gain, significant
 from acn.models.diagnose.compare import Comparison, group_errors
 from acn.models.diagnose.pipeline import Diagnosis
@@ -226,7 +227,12 @@ def _values_text(free: list[dict], most: int) -> str:
     if len(free) > most:  # 12 per-joint values: the spread, the rest is in the JSON
         v = np.array([f["value"] for f in free])
         return f"{len(free)} values {v.min():.3g}..{v.max():.3g} (see --json)"
-    return ", ".join(f"{f['name']}={f['value']:.4g} +- {f['stderr']:.2g}" for f in free)
+    return ", ".join(f"{f['name']}={f['value']:.4g} +- {_number(f['stderr'], '.2g')}" for f in free)
+
+
+def _number(x: float | None, spec: str, missing: str = "not identified") -> str:
+    """``x`` formatted, or ``missing`` where it is not a finite number (a diagnosis never prints nan)."""
+    return format(x, spec) if x is not None and np.isfinite(x) else missing
 
 
 def _longer(c: Candidate) -> str:
@@ -295,7 +301,7 @@ def to_json(d: Diagnosis) -> dict:
 
 
 def write_json(d: Diagnosis, path: str | Path) -> Path:
-    return write_file(path, json.dumps(to_json(d), indent=2, default=_plain, allow_nan=False) + "\n")
+    return write_file(path, json.dumps(strict_json(to_json(d)), indent=2, default=_plain, allow_nan=False) + "\n")
 
 
 def _plain(o):
@@ -321,8 +327,8 @@ def error_table(before: Comparison, after: Comparison | None = None) -> str:
     for g in groups:
         cells = []
         for h in hs:
-            b = before.error[h].get(g, float("nan"))
-            cells.append(f"{b:.4f}" if after is None else f"{b:.4f} -> {after.error[h].get(g, float('nan')):.4f}")
+            b = _number(before.error[h].get(g), ".4f", "-")
+            cells.append(b if after is None else f"{b} -> {_number(after.error[h].get(g), '.4f', '-')}")
         rows.append([g] + cells)
     return _table(head, rows)
 
