@@ -464,7 +464,7 @@ def ppo_parser() -> argparse.ArgumentParser:
                 "data of the current policy (the paper's Algorithm 2). Or, with --eval, reload and evaluate.")
     mode = p.add_mutually_exclusive_group(required=True)
     mode.add_argument("--timesteps", type=_positive_int, help="train for this many PyBullet control steps in all; fewer than one rollout (n_steps x envs, "
-                      "2048 by default) is a quick trial: those steps, a 2-epoch refit on one 2 s paired episode and a "
+                      "2048 by default) is a quick trial: those steps, a 2-epoch refit on two 2 s paired episodes and a "
                       "final evaluation of 2 episodes of 2 s (options you set are kept)")
     mode.add_argument("--eval", type=Path, metavar="POLICY", help="evaluate a saved policy directory (DIR/policy)")
     p.add_argument("--out", type=_out_path, help="run directory to create (training); --eval: a JSON file to write")
@@ -521,13 +521,16 @@ def ppo_main(argv: list[str] | None = None) -> int:
         m = trainer.run()
         t = m["training"]
         print(format_table(m["final_evaluation"]))
+        recent = t["train_return_last_100_episodes"]
         print(f"trained {t['timesteps']} steps ({t['episodes']} episodes) in {t['wall_seconds_this_session']:.0f} s; "
-              f"mean training return of the last 100 episodes {t['train_return_last_100_episodes']:.1f}")
+              + (f"mean training return of the last 100 episodes {recent:.1f}" if recent is not None
+                 else "no training episode finished"))
         print(f"corrector frozen (tensor sha256 unchanged while in use): {m['corrector_frozen']}")
         out = args.out.absolute()
-        print(f"wrote {out / 'policy'} (safetensors + JSON), {out / 'corrector'}, {out / 'metrics.json'}, "
-              f"{out / 'curves.png'}; {out / 'checkpoint'} resumes training (--resume)")
-        print(f"evaluate again: acn-ppo --eval {out / 'policy'} --corrector {out / 'corrector'}")
+        corrector = out / "corrector" if (out / "corrector").is_dir() else None
+        print(f"wrote {out / 'policy'} (safetensors + JSON), {f'{corrector}, ' if corrector else ''}"
+              f"{out / 'metrics.json'}, {out / 'curves.png'}; {out / 'checkpoint'} resumes training (--resume)")
+        print(f"evaluate again: acn-ppo --eval {out / 'policy'}" + (f" --corrector {corrector}" if corrector else ""))
         return 0
 
     return _run("acn-ppo", body)

@@ -6,7 +6,7 @@ how to recognise one the toolkit wrote. ``check_output`` refuses, in one ``UserE
 
 - an empty path, ``.``, ``/``, the home directory, and any directory that holds the working
   directory (replacing them would delete what the user is working in);
-- a path that is an input of the same command, or a directory that holds one;
+- a path that is an input of the same command, a directory that holds one, or a path inside one;
 - a path whose parent directory is missing or not writable;
 - for a directory output: a file; an existing directory without ``overwrite``; with
   ``overwrite``, a directory that holds anything but the toolkit's own output of the same kind
@@ -84,9 +84,12 @@ def check_output(path: str | Path | None, kind: Output, flag: str = "--out", ove
             ("the home directory" if out == home else "the working directory or one holding it")
         raise UserError(f"{flag} {given} is {where}; give a {kind.what} path of its own")
     for i in inputs:
-        if i is not None and _holds(out, _resolved(Path(i))):
-            same = out == _resolved(Path(i))
-            raise UserError(f"{flag} {given} {'is' if same else 'holds'} the input {i}; write the output elsewhere")
+        if i is None:
+            continue
+        source = _resolved(Path(i))
+        if _holds(out, source) or _holds(source, out):
+            how = "is" if out == source else ("holds" if _holds(out, source) else "is inside")
+            raise UserError(f"{flag} {given} {how} the input {i}; write the output elsewhere")
     parent = out.parent
     if not parent.is_dir():
         raise UserError(f"{flag} {given}: its directory {parent} does not exist (create it first)")

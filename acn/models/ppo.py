@@ -140,13 +140,13 @@ class PPOConfig:
     def sized_for_run(self, keep: set[str] = frozenset()) -> "PPOConfig":
         """This config with a short run kept short. A run of fewer ``timesteps`` than one rollout
         (``n_steps`` x ``n_envs``, 2,048 by default) is a trial of the plumbing: it collects its steps
-        in one rollout, refits on one 2 s paired episode for 2 epochs, and evaluates 2 episodes of
+        in one rollout, refits on two 2 s paired episodes for 2 epochs, and evaluates 2 episodes of
         2 s; a longer run is unchanged. Fields named in ``keep`` (set by the user) are left as they are."""
         if self.timesteps >= self.n_steps * self.n_envs:
             return self
         n_steps = max(2, math.ceil(self.timesteps / self.n_envs))
         small = dict(n_steps=n_steps, batch_size=min(self.batch_size, n_steps * self.n_envs), final_eval_episodes=2,
-                     eval_seconds=2.0, eval_every=0, refit_episodes=1, refit_seconds=2.0, fit_epochs=2,
+                     eval_seconds=2.0, eval_every=0, refit_episodes=2, refit_seconds=2.0, fit_epochs=2,
                      oracle_episodes=0)
         keep = {{"envs": "n_envs", "variant": "corrector_variant"}.get(k, k) for k in keep}
         return replace(self, **{k: v for k, v in small.items() if k not in keep})
@@ -851,7 +851,10 @@ def plot_curves(state: RunState, final: dict | None, path: Path) -> None:
         a.plot(c[k - 1:, 0], np.convolve(c[:, 2], np.ones(k) / k, mode="valid"), color="tab:blue",
                label=f"mean of {k}")
     a.set(title="PPO training in PyBullet (training reward)", xlabel="timesteps", ylabel="episode return")
-    a.legend(loc="lower right")
+    if state.train_curve:
+        a.legend(loc="lower right")
+    else:  # a run shorter than one episode
+        a.text(0.5, 0.5, "no training episode finished", transform=a.transAxes, ha="center")
     colours = {"pybullet": "tab:blue", "mujoco": "tab:red", "mujoco_corrected": "tab:green"}
     labels = {"pybullet": "PyBullet", "mujoco": "MuJoCo", "mujoco_corrected": "MuJoCo + corrector"}
     for run in RUNS:
