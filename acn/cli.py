@@ -187,7 +187,8 @@ def collect_parser() -> argparse.ArgumentParser:
     p = _Parser(
         prog="acn-collect",
         description="Run the A1 in a source simulator (and, paired, in a target simulator from the "
-        "same initial state with the same actions) and write a LeRobot v3.0 dataset.",
+        "same initial state with the same actions) and write a LeRobot v3.0 dataset. Ctrl-C keeps the finished "
+        "episodes as a dataset in a new --out; over an existing dataset (--overwrite) it leaves that dataset as it was.",
     )
     p.add_argument("--source", default="pybullet", choices=BACKENDS, help="simulator the policy acts on")
     p.add_argument("--target", default=None, choices=BACKENDS,

@@ -27,9 +27,8 @@ settings.load_profile("acn")
 
 @pytest.fixture(scope="session", autouse=True)
 def _outside_the_tree(tmp_path_factory):
-    """Run every test from a temporary directory: what a library writes into the working
-    directory (MuJoCo's MUJOCO_LOG.TXT when a test blows a simulation up on purpose) stays out
-    of the repository."""
+    """Run every test from a temporary directory: anything a library writes into the working
+    directory stays out of the repository."""
     before = os.getcwd()
     os.chdir(tmp_path_factory.mktemp("cwd"))
     yield

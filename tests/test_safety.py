@@ -256,9 +256,11 @@ def test_a_tiny_ppo_request_stays_tiny():
 
 
 def test_mujoco_writes_no_log_file_into_the_working_directory(tmp_path, monkeypatch):
+    import importlib
+
     import mujoco
 
-    import acn.toolkit  # noqa: F401 - turns MuJoCo's own log off
+    importlib.import_module("acn.toolkit")  # which turns MuJoCo's own log off
 
     monkeypatch.chdir(tmp_path)
     m = mujoco.MjModel.from_xml_string('<mujoco><worldbody><body><joint name="j"/><geom size=".1"/></body>'
