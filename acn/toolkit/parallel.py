@@ -198,8 +198,8 @@ def episodes_on_ray(config: "CollectConfig", indices: Iterable[int], in_flight: 
     ``ray.cancel``: their results are freed when they end, and Ray kills a driver's tasks when the
     driver exits, as an interrupted command does. ``ray.cancel`` races the reply of a task that
     is just finishing, and Ray's driver then aborts ("Tried to complete task that was not
-    pending", exit 1 instead of the interrupt's 130; seen with ``force=True`` in stop 39 and
-    with ``force=False`` in stop 54; ray-project/ray#54798 mends the same race on retries only).
+    pending", exit 1 instead of the interrupt's 130; seen with ``force=True`` and with
+    ``force=False``; ray-project/ray#54798 mends the same race on retries only).
     """
     ray = import_ray()
     if not ray.is_initialized():

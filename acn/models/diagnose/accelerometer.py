@@ -6,8 +6,8 @@ reads the last moment instead: MuJoCo's ``accelerometer`` sensor (the last physi
 the control loop samples without averaging over the period. While a foot lands the two differ by
 several m/s^2 (12 m/s^2 for a 3 cm drop, ``tests/test_backends.py``), so a model compared with
 the wrong reading leaves a structured accelerometer error that no physical effect explains
-(stop 42: a noise-free log written with MuJoCo's sensor came out ``unexplained`` under the true
-model, ``imu_acc`` 25 times the median group's error).
+(a noise-free log written with MuJoCo's sensor comes out ``unexplained`` under the true model
+when read as the mean, ``imu_acc`` 25 times the median group's error).
 
 ``read_accelerometer`` first asks the log itself, without a model (``integration``): the trunk's
 world velocity changes over a control step by dt x the mean reading exactly, and by about the

@@ -285,8 +285,7 @@ def too_little(j: Judgement, longer: float | None, floor_mse: float) -> str:
     ``AUTO_MIN_EXPLAINED`` of the structured error left (and less than ``STRUCTURED_SHARE`` of the
     whole), or removes less than ``AUTO_MIN_REMOVED`` of the one-step error and less than
     ``AUTO_MIN_LONGER`` of the longest-horizon one. ``greedy`` asks it of the best candidate, and
-    again of its final fit (before stop 44 only of the candidate: a final fit on more rows can
-    remove less than the ranking's)."""
+    again of its final fit (a final fit on more rows can remove less than the ranking's)."""
     if j.explained(floor_mse) < AUTO_MIN_EXPLAINED and j.removed < STRUCTURED_SHARE:
         return f"explains only {j.explained(floor_mse):.1%} of the structured error left"
     if j.removed < AUTO_MIN_REMOVED and (longer or 0.0) < AUTO_MIN_LONGER:
@@ -305,7 +304,7 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
     A candidate whose final fit is not added (``final_doubt``, or ``too_little`` on it) is set
     aside and the next one is tried by the same rules. A significant candidate too little to add
     is passed over for the next significant one, which a long prediction may have shown
-    (``rank.uneven``; before stop 54 greedy stopped there). Returns the added effects and those set
+    (``rank.uneven``). Returns the added effects and those set
     aside (name -> why).
 
     An effect already added comes back as a candidate where the ranking beside the effects added
@@ -543,8 +542,8 @@ def revisit(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows
     took its place; that chain predicted 1, 5 and 25 steps 3.6 % (z -7.3), 26 % and 93 % worse
     (mean squares) than the payload's.
 
-    An effect is left out where neither it nor a simpler one is significant beside the others
-    (stop 65): added first, an effect can stand in for one added after it and end, once that one
+    An effect is left out where neither it nor a simpler one is significant beside the others:
+    added first, an effect can stand in for one added after it and end, once that one
     is refitted beside it, near its nominal values. A fresh draw of floor friction 0.27 with
     motor strength 0.89: the ground's softness, added first at 34.4 ms, ended at 18.8 ms (nominal
     20 ms) beside both; judged again it removed 1.8 % of the one-step error (not significant),

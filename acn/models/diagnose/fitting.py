@@ -20,13 +20,12 @@ left 32.6 % of the offsets' norm (172 evaluations; 11.9 % after 36 iterations), 
 10.8 % within the same evaluations and 3.6 % within the budget given for them (2 n + 3
 evaluations per iteration, 328 here). Not everywhere: with central differences in every fit,
 the 12 offsets also fitted a few per cent of a torque-limit log's error (4-17 mrad, no offsets
-hidden), and ``--auto`` added them (``benchmarks/diagnose_cases.py``, stop 40), which is why
+hidden), and ``--auto`` added them (``benchmarks/diagnose_cases.py``), which is why
 the effects are chosen with forward differences and only the chosen ones are refined.
 The fit over several steps (``multistep_refit``) takes central differences too where effects
 are refitted beside it: over five steps a payload and the PD gains lie along a curved valley
 ((robot + payload mass) / kp nearly constant), where 10 % forward steps mislead Gauss-Newton
-and the fit stopped ("insufficient reduction") at a point that fits worse than the truth
-(stop 57, below).
+and the fit stops ("insufficient reduction") at a point that fits worse than the truth.
 """
 
 from __future__ import annotations
@@ -418,7 +417,7 @@ def _stderr(r: np.ndarray, jac: np.ndarray, rows: int) -> np.ndarray:
     J' diag(psi'(r)) J, scores J' psi(r) per row (psi(r) = r / sqrt(1 + (r / delta)^2), the width
     delta the fit's: 3 robust sigmas). ``mujoco.sysid.calculate_intervals`` treats every residual
     as independent; one trajectory's rows are not: these came out 1.0-3.2x its on three logs' final
-    fits and 1.4-5.6x on ``make demo``'s hidden log's ranking (docs/diagnosis.md, stop 66). Both
+    fits and 1.4-5.6x on the hidden log's ranking of ``make results`` (docs/diagnosis.md). Both
     are the local slope's: neither sees a cost that is rough along a valley (two parameters trading
     off), nor a bias (a fitted value several of them from the truth is no rarity). inf for a
     parameter the residual does not depend on."""

@@ -433,16 +433,14 @@ def uneven(horizon: LongestHorizon, ranking: list[Candidate]) -> None:
     show the limit (the fit removes 0.3 % of the 25-step error there); on the first log, 90 % of
     the 48 % came from 5 of the 200 rollout starts, large events a rarely reached limit makes.
 
-    A small effect can be clear at one step (by z) and still remove less than 2 % there (stop 53,
-    a fresh draw under attitude feedback: a 0.97 kg payload beside an 11 ms delay; after the
+    A small effect can be clear at one step (by z) and still remove less than 2 % there (a draw under attitude feedback: a 0.97 kg payload beside an 11 ms delay; after the
     delay the payload removed 1.8 % of the one-step error at z 8.1 and 54 % of the 25-step
     error, motor strength 1.4 % at z 5.6 and 49 %). Both are checked, and the one that removes
     the most is taken, not the first in rank order: a simpler effect standing in for a richer
     one ranks first by its price.
 
     A candidate significant at one step that was checked and removes less than
-    ``MIN_IMPROVEMENT`` of the longest-horizon error does not stand in the way (stop 54, a fresh
-    draw: floor friction 0.63 + a 2.2 kg payload on the pace; after the floor's friction, joint
+    ``MIN_IMPROVEMENT`` of the longest-horizon error does not stand in the way (a draw: floor friction 0.63 + a 2.2 kg payload on the pace; after the floor's friction, joint
     friction removed 3.4 % of the one-step error at z 6.4 and 0.2 % of the 25-step error, too
     little to add, while the payload, 3.0 % at z 2.99, removes 86 % of the 25-step error).
     """
@@ -480,7 +478,7 @@ def prefer_simpler(ranking: list[Candidate], horizon: LongestHorizon | None = No
 
     Close at one step (the 90 %) does not hand the place over where the richer one is
     significantly better there and also removes ``LONGER_MARGIN`` more of the longest-horizon
-    error (``longer_margin``; stop 49). A fresh draw of a 2.9 kg payload beside a 19 ms
+    error (``longer_margin``). A draw of a 2.9 kg payload beside a 19 ms
     delay: after the delay, motor strength removed 92 % of what the payload removed at one step
     (z 4.0 between them), but the payload 75 % of the 25-step error against 70 %. Strength was
     added instead, and the payload never came back.
