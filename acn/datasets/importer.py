@@ -190,6 +190,8 @@ def read_table(path: Path) -> LogTable:
     then the file is refused (another separator or format)."""
     import pyarrow as pa
 
+    if path.is_dir():
+        raise UserError(f"{path} is a directory, not a log file (give the files in it: {path}/*.csv)")
     if not path.is_file():
         raise UserError(f"log file {path} does not exist")
     suffixes = [x.lower() for x in path.suffixes]
