@@ -80,9 +80,8 @@ realistic range, on the sines or the pace controller (the pace wherever the floo
 drawn); the latency + lag pair is not drawn (a delay beside a lag is a known limit). The same
 line and totals as ``--pairs``. With ``--one-joint``, a drawn damping, friction, armature or
 strength sits on one joint drawn at random (a worn joint, a weak motor), the other effect on
-every joint alike; without it the draws are those of stops 55-68. ``--keep DIR`` keeps every
-imported dataset there (``dK``), to
-re-diagnose with ``acn-diagnose``.
+every joint alike; without it both effects act on every joint alike. ``--keep DIR`` keeps every
+imported dataset there (``dK``), to re-diagnose with ``acn-diagnose``.
 """
 
 from __future__ import annotations
@@ -164,16 +163,16 @@ CASES = {
     "springs (outside)": ({"spec_edit": _joints("stiffness", 3.0)}, "unexplained", None, None, None),
     # the trunk logged as a motion-capture body 6 cm above its origin, tilted (a reading, not physics)
     "mocap body": ({"marker": (0.02, -0.015, 0.06, 0.02, -0.03)}, "effect", "base_frame_offset", "z", 0.06),
-    # softer ground (the feet sink 11 mm standing instead of 1.3), named ground_friction 1.69 before
-    # the catalogue had ground_softness
+    # softer ground (the feet sink 11 mm standing instead of 1.3), which ground_friction (1.69) would
+    # stand in for without ground_softness in the catalogue
     "soft ground": ({"spec_edit": _soft_ground(0.05)}, "effect", "ground_softness", "timeconst", 0.05),
     # a DC motor's torque-speed line (Isaac Lab's DCMotor: 33.5 N m stall, 14 rad/s no load, slope 2.39) on a
     # robot that hops, the one controller of these logs that drives the motors fast and hard at once
     "torque-speed (hop)": ({"dc_motor": (33.5, 14.0), "controller": "hop", "gait_speed": 1.2}, "effect",
                            "torque_speed", "slope", 33.5 / 14.0),
     "nominal (hop)": ({"controller": "hop", "gait_speed": 1.2}, "none", None, None, None),
-    # the motor follows its commands through a first-order low-pass (a driver's bandwidth): named a
-    # latency before the catalogue had actuator_lag
+    # the motor follows its commands through a first-order low-pass (a driver's bandwidth), which a
+    # latency would stand in for without actuator_lag in the catalogue
     "actuator lag": ({"command_lag": 0.015}, "effect", "actuator_lag", "timeconst", 0.015),
 }
 
@@ -198,7 +197,7 @@ OTHER = {
     # a faster motor (no load 16 rad/s: slope 2.09) on a gentler hop
     "torque-speed 16 rad/s (hop)": ({"dc_motor": (33.5, 16.0), "controller": "hop", "gait_speed": 1.1}, "effect",
                                     "torque_speed", "slope", 33.5 / 16.0),
-    # a faster driver on the pace gait: named a latency and joint damping before actuator_lag
+    # a faster driver on the pace gait, which a latency and joint damping would stand in for without actuator_lag
     "lag 8 ms (pace)": ({"command_lag": 0.008, "controller": "pace"}, "effect", "actuator_lag", "timeconst", 0.008),
     # a controller that smooths its actions after logging them (an exponential moving average, 0.5 of the
     # previous sent target per control step): another form of a lag; true value the continuous time
@@ -305,7 +304,7 @@ ONE_JOINT = ("joint_damping", "joint_friction", "armature", "motor_strength")
 def draw(seed: int, one_joint: bool = False) -> tuple[str, dict, list[tuple[str, str, float, str]]]:
     """One fresh pair: (a name, its LogSpec overrides, [(effect, parameter, true value, joint)] x 2);
     ``one_joint``: an effect of ``ONE_JOINT`` is set on one joint drawn at random (joint: its name),
-    the others on every joint alike (joint: ""). Without it the draws are those of stops 55-68."""
+    the others on every joint alike (joint: ""); without it every effect is on every joint alike."""
     rng = np.random.default_rng(seed)
     while True:
         pair = sorted(str(e) for e in rng.choice(list(DRAWN), size=2, replace=False))

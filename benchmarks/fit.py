@@ -77,8 +77,8 @@ class PerSampleDataset(Dataset):
 
 
 def paper_loss(delta_a: torch.Tensor, jacobian: torch.Tensor, residual: torch.Tensor, lambda_l1: float):
-    """The paper's loss as the authors compute it (and acn_loss did before its gradient was written
-    out): J delta_a by torch.bmm, autograd for the rest."""
+    """The paper's loss as the authors compute it: J delta_a by torch.bmm, autograd for the rest
+    (acn_loss writes its gradient out)."""
     predicted = torch.bmm(jacobian, delta_a.unsqueeze(-1)).squeeze(-1)
     fit = (predicted - residual).pow(2).mean()
     return fit + lambda_l1 * delta_a.abs().sum(dim=1).mean(), fit

@@ -89,7 +89,7 @@ def welded_payload(mass: float, pos: list[float], inertia: float = 1e-3) -> Call
     frame), its centre of mass at its origin, ``inertia`` kg m^2 about each axis (acn's ``payload``
     combines such a mass into the trunk's inertia). ``ipos`` must be set: MjSpec leaves it unset,
     and MuJoCo 4.0 then puts the centre of mass at ``pos`` in the body's own frame, twice ``pos``
-    from the trunk (before stop 48 every benchmark payload stated half its offset)."""
+    from the trunk (a payload would sit at twice the offset it states)."""
     def edit(spec: mujoco.MjSpec) -> None:
         body = spec.body("trunk").add_body(name="payload", pos=pos)
         body.ipos, body.iquat = [0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]

@@ -149,10 +149,10 @@ def test_consistent_logs_have_no_findings(rows):
 
 
 def test_a_lag_is_read_from_the_integrated_readings_not_from_the_pd_response():
-    """Under twice the attitude feedback at 200 Hz the joints move fast between rows; the lag
-    estimate the check used before (the central rate of the angles over four rows against the
-    reading) read 12.9 ms on this consistent log and named it. Integrating the readings over the
-    span reads ~1 ms, and a real 10 ms low-pass filter 10 ms."""
+    """Under twice the attitude feedback at 200 Hz the joints move fast between rows: a lag
+    estimated from the PD response (the central rate of the angles over four rows against the
+    reading) reads 12.9 ms on this consistent log and would name it. Integrating the readings over
+    the span reads ~1 ms, and a real 10 ms low-pass filter 10 ms."""
     spec = LogSpec(seconds=5.0, episodes=2, seed=100, noise=1.0, feedback=2.0, control_hz=200)
     consistent = _episodes(simulate(spec))
     for group in ("joint_vel", "base_angvel"):
@@ -167,8 +167,9 @@ def test_a_lag_is_read_from_the_integrated_readings_not_from_the_pd_response():
 
 def test_a_hopping_robot_that_pitches_in_flight_has_a_consistent_accelerometer():
     """Level while its legs push (large specific force), pitched up to 0.87 rad while it flies: the
-    accelerometer's mean over the rows near level read 13.0 m/s^2 up and was named. Gravity as the
-    logged roll and pitch turn it into the trunk frame, over every row, is what it matches."""
+    accelerometer's mean over the rows near level reads 13.0 m/s^2 up, which a check on those rows
+    alone would name. Gravity as the logged roll and pitch turn it into the trunk frame, over
+    every row, is what it matches."""
     hop = simulate(LogSpec(seconds=4.0, episodes=2, seed=105, controller="hop", gait_speed=1.2))
     assert np.abs(hop["base_pitch"]).max() > 0.5
     assert check(_episodes(hop), 1 / 50) == []
@@ -187,8 +188,8 @@ def test_a_robot_that_collapses_folding_its_legs_past_their_limits_has_the_right
     # diagnose_cases.py's "payload 3.5 kg" log with --feedback 1): the robot collapses and its
     # calves fold past the URDF's -2.70 rad in most rows. Joint ranges and targets are checked
     # while the robot is upright, where a joint with its median inside its range is a joint pressed
-    # past a soft limit, not a convention; before, this log read "another zero?" and "offsets from
-    # a nominal pose".
+    # past a soft limit, not a convention (checked over every row, this log would read "another
+    # zero?" and "offsets from a nominal pose").
     collapsed = simulate(LogSpec(seconds=4.0, episodes=1, seed=2, noise=1.0, feedback=1.0,
                                  spec_edit=welded_payload(3.5, [-0.1, 0.0, 0.1])))
     calves = np.column_stack([collapsed[f"{leg}_calf_pos"] for leg in ("FR", "FL", "RR", "RL")])

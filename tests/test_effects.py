@@ -108,7 +108,7 @@ def test_resimulation_reproduces_the_backend_step_by_step(backend, gains, backla
     also with gains that change every step (``hybrid``: MuJoCo's four actuators per joint
     without a dead band, the law in numpy with one), with either accelerometer (``imu``), with
     a torque-speed line (``slope``, the law in numpy; 8 N m s/rad bends these twelve trot
-    steps, moving the state by up to 0.25, where 4 left them as they were), and with the
+    steps, moving the state by up to 0.25, where 4 leaves them as they are), and with the
     commands through a low-pass after the latency (``lag``, s: it reaches three actions back)."""
     params = ModelParams(latency=0.027, encoder_offset=0.03, payload_mass=1.0, payload_com=[0.02, 0.0, 0.01],
                          backlash=backlash, armature=0.01, kp_scale=0.8, kd_scale=1.2, motor_strength=0.9,
@@ -203,7 +203,7 @@ def test_a_torque_command_under_a_torque_speed_line_reaches_the_joints_once_scal
 
 def test_both_backends_carry_the_same_payload():
     """The trunk's mass, centre of mass and principal inertias agree between the simulators with
-    a payload (PyBullet once added the payload twice: in the URDF and again by changeDynamics).
+    a payload (not added twice in PyBullet: in the URDF and again by changeDynamics).
     MuJoCo's URDF import fuses a small fixed link (1 g, 1e-4 kg m^2) into the trunk: the tolerance."""
     params = ModelParams(payload_mass=2.0, payload_com=[0.03, -0.01, 0.02])
     with make_backend("mujoco", SimConfig(params=params)) as mj, make_backend("pybullet", SimConfig(params=params)) as pb:
@@ -367,8 +367,8 @@ def test_the_pd_gains_are_read_in_the_words_of_the_effects_they_reproduce():
 
 def test_motor_strength_and_joint_damping_together_are_read_as_the_pd_gains():
     """``Effect.together``, ``alike`` reversed: strength 0.66 + damping 0.6 is kp x0.66, kd x(0.66 +
-    0.6 / kd), as the report says where a diagnosis added both (a fresh draw with kp x0.63 hidden
-    came out so); it re-simulates to the same states. The report's reading of a final model."""
+    0.6 / kd), as the report says where a diagnosis adds both (a benchmark draw with kp x0.63
+    hidden comes out so); it re-simulates to the same states. The report's reading of a final model."""
     from types import SimpleNamespace
 
     from acn.models.diagnose.report import _together, _together_text

@@ -313,7 +313,7 @@ def test_corrector_files_are_safetensors_and_json_and_old_configs_load(inverse, 
 
     s, a = default_state(), np.full(12, 0.1)
     np.testing.assert_allclose(loaded.correct(s, a), model.correct(s, a), rtol=1e-6)
-    # A corrector written before labelled variants existed (no delta_scale) still loads.
+    # A corrector config without delta_scale (a corrector of an unlabelled variant's format) still loads, scale 1.
     del config["delta_scale"]
     (path / "config.json").write_text(json.dumps(config))
     assert Corrector.load(path).delta_scale.tolist() == [1.0] * 12

@@ -227,16 +227,16 @@ def test_a_hybrid_command_is_stored_whole(tmp_path, acn):
     assert not (tmp_path / "p").exists()
 
 
-def test_a_dataset_with_stop_38s_hybrid_layout_is_still_read(tmp_path):
-    """Datasets imported before the velocity target had its own place stored ``action.hybrid``
-    36 wide: kp, kd and one feedforward kd dq_des + tau_ff. They are read as a velocity target
-    of 0 with that feedforward: the same target and the same PD at nominal gains."""
+def test_a_dataset_with_the_36_wide_hybrid_layout_is_still_read(tmp_path):
+    """``action.hybrid`` 36 wide (kp, kd and one feedforward kd dq_des + tau_ff, no velocity target
+    of its own), as datasets on users' disks may store it, is read as a velocity target of 0 with
+    that feedforward: the same target and the same PD at nominal gains."""
     from acn.datasets.importer import ImportConfig, import_log
 
     write_log(tmp_path / "log.csv", LogSpec(seconds=1.0, episodes=1, seed=5, feedforward=True))
     path = import_log(tmp_path / "log.csv", tmp_path / "ds", ImportConfig(50, 60.0, 1.5, 33.5))[0]
     now = load_measurements(path)
-    for f in sorted(path.rglob("data/**/*.parquet")):  # rewrite the data and features as stop 38 wrote them
+    for f in sorted(path.rglob("data/**/*.parquet")):  # rewrite the data and features 36 wide
         t = pq.read_table(f)
         h = np.array(t.column("action.hybrid").to_pylist())
         old = np.hstack([h[:, :24], h[:, 12:24] * h[:, 24:36] + h[:, 36:]]).astype(np.float32)
@@ -468,7 +468,7 @@ def test_a_log_other_code_got_wrong_gets_one_line_naming_the_cause(tmp_path, log
         (pa.table(interleaved), "sort the log by episode_index, then timestamp"),
         (pa.table({k: v[:0] for k, v in log_rows.items()}), "no data rows"),
         (pa.table(f32), "the timestamps are float32 numbers"),
-        # whole microseconds are float32 numbers too, and were once called so
+        # whole microseconds are float32 numbers too: named as microseconds, not float32
         (pa.table({**log_rows, "timestamp": (log_rows["timestamp"] * 1e6).astype(np.int64)}),
          'timestamps in us? map timestamp with "scale": 1e-06'),
     ]

@@ -47,8 +47,8 @@ def _ray_processes(temp_dir: str) -> list[str]:
 
 
 def test_this_module_runs_on_one_test_process(request):
-    """`make test` (--dist loadgroup) keeps an xdist_group on one worker; pytest 9.2 broke that
-    silently (pyproject keeps it below 9.2), and two Ray instances then started at once."""
+    """`make test` (--dist loadgroup) keeps an xdist_group on one worker; pytest 9.2 ignores the
+    groups silently (pyproject keeps it below 9.2), and two Ray instances would start at once."""
     if getattr(request.config.option, "loadgroup", False):  # a pytest-xdist worker under --dist loadgroup
         assert request.node.nodeid.endswith("@ray"), request.node.nodeid
 
@@ -61,7 +61,7 @@ def ray_address():
         new = set(Path(tempfile.gettempdir()).glob("acn-ray-*")) - before
         address = ray.get_runtime_context().gcs_address
         # this session's: another process on the machine may start a Ray instance meanwhile (the
-        # other test worker did while pytest 9.2 ignored xdist_group); ours run with --gcs-address=<ours>
+        # other test worker would, were xdist_group ignored); ours run with --gcs-address=<ours>
         ours = [t for t in new if any(f"--gcs-address={address}" in c for c in _ray_processes(str(t)))] or sorted(new)
         assert len(ours) == 1, f"expected one new Ray temp dir, found {sorted(map(str, new))}"
         temp_dir = str(ours[0])
