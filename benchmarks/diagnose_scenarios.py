@@ -449,6 +449,21 @@ def pybullet_measurements_with_a_mujoco_model_still_find_the_effect(tmp, value):
 
 
 @check
+def noisy_log_from_another_controller_finds_the_latency(tmp, value):
+    """A 15 ms latency in another controller's noisy log: ranked first over the whole catalogue
+    (``make test`` ranks the effects a latency's error looks like), fitted within 15 %, and what
+    is left is the sensor noise (measured: 98 % of the rest explained)."""
+    d = diagnose(load_measurements(noisy_log(shared(), "latency")), Model.parse("mujoco"), FAST,
+                 add=["actuator_latency"])
+    added = d.added[0]
+    value["first"], value["seconds"] = d.ranking[0].name, round(float(added.fit.values["seconds"]), 5)
+    value["explained"] = round(added.judgement.explained(d.floor_mse), 3)
+    assert d.ranking[0].name == "actuator_latency" and d.verdict == "effect", d.reason
+    assert close(added.fit.values["seconds"], 0.015, rel=0.15)
+    assert added.judgement.explained(d.floor_mse) >= 0.8 and added.after.headline < added.before.headline
+
+
+@check
 def a_closed_loop_controllers_noisy_log_finds_the_damping(tmp, value):
     """A controller that levels the trunk on its measured, noisy roll and pitch (the pace gait,
     which falls open loop, stays upright): the log's actions carry the noise of the states the

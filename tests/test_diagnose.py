@@ -29,21 +29,23 @@ from acn.toolkit.collector import CollectConfig
 from acn.toolkit.effects import AppliedEffect, Model, get_effect
 from acn.toolkit.state import JOINT_NAMES, SLICES, STATE_NAMES
 
-# effect -> (hidden params): a joint effect, whose granularity is chosen among all four, and a reading-only
-# one (a motion-capture body, or PyBullet's centre of mass and principal axes, instead of the trunk frame).
-# Every other effect of the catalogue: benchmarks/diagnose_scenarios.py's each_hidden_effect.
+# effect -> (hidden params, the candidates it is ranked against: the effects whose error looks most like its own).
+# A joint effect, whose granularity is chosen among all four, and a reading-only one (a motion-capture body, or
+# PyBullet's centre of mass and principal axes, instead of the trunk frame). Every effect of the catalogue,
+# each ranked against the whole catalogue: benchmarks/diagnose_scenarios.py's each_hidden_effect.
 CASES = {
-    "joint_damping": {"value": 0.4},
-    "base_frame_offset": {"x": 0.03, "y": -0.02, "z": 0.04, "roll": 0.03, "pitch": -0.04},
+    "joint_damping": ({"value": 0.4}, ("joint_damping", "joint_friction", "armature", "pd_gains", "motor_strength")),
+    "base_frame_offset": ({"x": 0.03, "y": -0.02, "z": 0.04, "roll": 0.03, "pitch": -0.04},
+                          ("base_frame_offset", "encoder_offset", "payload", "joint_damping")),
 }
 
 
 @pytest.mark.parametrize("name", list(CASES))
 def test_each_hidden_effect_is_ranked_first_fitted_and_removed(tmp_path, name):
-    """acn-collect measurements (excitation policy) with the effect hidden: ranked first over the
-    whole catalogue, fitted within 20 %, >= 80 % of the error removed, one value for every joint."""
-    params = CASES[name]
-    cfg = FAST if name == "joint_damping" else replace(FAST, finest="shared")
+    """acn-collect measurements (excitation policy) with the effect hidden: ranked first, fitted
+    within 20 %, >= 80 % of the error removed, one value for every joint."""
+    params, candidates = CASES[name]
+    cfg = replace(FAST, candidates=candidates, finest="joint" if name == "joint_damping" else "shared")
     d = diagnose(measured(tmp_path, {name: params}), Model.parse("mujoco"), cfg, add=[name])
     assert d.ranking[0].name == name, [(c.name, c.score) for c in d.ranking[:3]]
     assert d.verdict == "effect", d.reason
@@ -116,6 +118,14 @@ def test_a_chain_replaces_the_kept_one_where_it_predicts_better_at_more_horizons
     assert predicts_no_worse(v(-0.01, -1.0, -0.02, 0.01))    # within every margin: the simpler chain is kept
 
 
+# What the torque-mode test ranks the damping against, on a 2 x 2 s log: the effects that stand in for it
+# when one 5 ms control step is judged (the whole catalogue on 2 x 4 s: benchmarks/diagnose_scenarios.py)
+TORQUE_SECONDS = 2.0
+TORQUE_CANDIDATES = ("joint_damping", "armature", "encoder_offset", "base_frame_offset")
+# What the latency tests rank it against: the effects a latency's error looks like
+LATENCY_CANDIDATES = ("actuator_latency", "actuator_lag", "armature", "joint_damping")
+
+
 def test_noisy_nominal_log_is_none(tmp_path):
     """Another controller's log with the typical sensor noise and no effect, over the whole
     catalogue: verdict none, and the error is mostly noise."""
@@ -125,22 +135,16 @@ def test_noisy_nominal_log_is_none(tmp_path):
 
 
 def test_noisy_log_from_another_controller_finds_the_latency(tmp_path):
-    """A 15 ms latency in another controller's noisy log: ranked first over the whole catalogue,
-    fitted within 15 %, and what is left is the sensor noise."""
-    d = diagnose(load_measurements(noisy_log(tmp_path, "latency")), Model.parse("mujoco"), FAST,
+    """A 15 ms latency in another controller's noisy log: ranked first against the effects a
+    latency's error looks like (the whole catalogue: benchmarks/diagnose_scenarios.py), fitted
+    within 15 %, and what is left is the sensor noise."""
+    cfg = replace(FAST, candidates=LATENCY_CANDIDATES)
+    d = diagnose(load_measurements(noisy_log(tmp_path, "latency")), Model.parse("mujoco"), cfg,
                  add=["actuator_latency"])
     assert d.ranking[0].name == "actuator_latency" and d.verdict == "effect", d.reason
     assert close(d.added[0].fit.values["seconds"], 0.015, rel=0.15)
     added = d.added[0]  # what is left is the sensor noise (measured: 98 % of the rest explained)
     assert added.judgement.explained(d.floor_mse) >= 0.8 and added.after.headline < added.before.headline
-
-
-# What the torque-mode test ranks the damping against, on a 2 x 2 s log: the effects that stand in for it
-# when one 5 ms control step is judged (the whole catalogue on 2 x 4 s: benchmarks/diagnose_scenarios.py)
-TORQUE_SECONDS = 2.0
-TORQUE_CANDIDATES = ("joint_damping", "armature", "encoder_offset", "base_frame_offset")
-# What the hybrid-command test ranks the latency against: the effects a latency's error looks like
-MPC_CANDIDATES = ("actuator_latency", "actuator_lag", "armature", "joint_damping")
 
 
 def test_a_torque_controlled_200_hz_noisy_log_finds_the_damping(tmp_path):
@@ -180,7 +184,7 @@ def test_an_mpc_style_controller_that_sends_stance_legs_pure_torques_has_its_lat
     assert report.findings == [] and set(report.hybrid) == {"action_torque", "action_kp", "action_kd"}
     m = load_measurements(path)
     assert m.action.shape[1] == 60 and (m.action[:, 12:24] == 0).any()  # kp 0 on the stance legs
-    cfg = replace(FAST, finest="shared", candidates=MPC_CANDIDATES)
+    cfg = replace(FAST, finest="shared", candidates=LATENCY_CANDIDATES)
     d = diagnose(m, Model.parse("mujoco"), cfg, add=["actuator_latency"])
     assert d.ranking[0].name == "actuator_latency" and d.verdict == "effect", d.reason
     assert abs(d.added[0].fit.values["seconds"] - 0.015) < 0.0015
