@@ -12,6 +12,10 @@ import tempfile
 import pytest
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
+# One OpenBLAS thread per test process (set before numpy loads; children inherit it): `make test` runs two
+# processes on two cores, and numpy's default thread per core in each makes the data checks' least squares
+# spin against the other process (a diagnosis's checks: 8 s with two threads, 0.1 s with one, measured here).
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from hypothesis import settings  # noqa: E402
 from hypothesis.configuration import set_hypothesis_home_dir  # noqa: E402
