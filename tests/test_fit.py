@@ -330,7 +330,7 @@ def test_datasets_with_different_rates_are_refused(paired, tmp_path):
 
     other = record(CollectConfig(target="mujoco", episodes=2, seconds=0.2, sim=SimConfig(substeps=10)),
                    tmp_path / "100hz")
-    with pytest.raises(UserError, match="substeps"):
+    with pytest.raises(UserError, match="do not belong together: --control-hz 100.0 vs 50.0"):
         fit([paired, other], FitConfig(**FAST))
 
 

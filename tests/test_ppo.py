@@ -232,7 +232,9 @@ def test_bad_input_is_one_line_and_exit_2(tiny_run, tmp_path, capsys, case, mess
         "missing_corrector_eval": ["--eval", str(out / "policy"), "--corrector", str(tmp_path / "none")],
         "schema": ["--eval", str(_schema_mismatch(out, tmp_path)), "--corrector", str(out / "corrector")],
         "torque_corrector": ["--eval", str(out / "policy"), "--corrector", str(_torque_corrector(out, tmp_path))],
-        "existing_out": ["--timesteps", "64", "--out", str(out), "--corrector", str(out / "corrector")],
+        # a corrector from elsewhere: one inside --out is refused first, as an input the run would replace
+        "existing_out": ["--timesteps", "64", "--out", str(out), "--corrector",
+                         str(shutil.copytree(out / "corrector", tmp_path / "elsewhere"))],
         "resume_nothing": ["--timesteps", "64", "--out", str(new), "--resume"],
         "bad_set": ["--timesteps", "64", "--out", str(new), "--corrector", str(out / "corrector"), "--set", "speed=9"],
         "no_out": ["--timesteps", "64", "--corrector", str(out / "corrector")],

@@ -230,7 +230,7 @@ def _view_error(capsys, *argv: str) -> str:
 
 def test_bad_input_is_one_line_and_exit_2(small_dataset, tmp_path, capsys):
     assert "is not a LeRobot dataset" in _view_error(capsys, str(tmp_path))
-    assert "is not a dataset directory" in _view_error(capsys, str(tmp_path / "missing"))
+    assert "does not exist" in _view_error(capsys, str(tmp_path / "missing"))
     assert "episode 5 does not exist" in _view_error(capsys, str(small_dataset), "--episodes", "0,5")
     assert "comma-separated" in _view_error(capsys, str(small_dataset), "--episodes", "first")
     other = make_corrector(tmp_path / "other", input_channels=["base_pos_z", "wheel_speed"])
