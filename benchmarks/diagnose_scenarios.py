@@ -317,6 +317,17 @@ def nominal_data_is_none(tmp, value):
 
 
 @check
+def noisy_nominal_log_is_none(tmp, value):
+    """Another controller's log with the typical sensor noise and no effect, over the whole
+    catalogue (``make test`` ranks the effects that fit sensor noise best): verdict none, and the
+    error is mostly noise."""
+    d = diagnose(load_measurements(noisy_log(shared(), "nominal")), Model.parse("mujoco"), FAST)
+    value["noise_share"] = round(1 - d.structured_share, 3)
+    assert d.verdict == "none", d.reason
+    assert 0.5 < 1 - d.structured_share <= 1.0  # the error is mostly noise, and the report says so
+
+
+@check
 def physics_outside_the_catalogue_is_unexplained(tmp, value):
     """Joint springs are in no candidate of the whole catalogue: whatever fits best leaves
     structure, or needs absurd values (``make test`` ranks the joint effects alone)."""
