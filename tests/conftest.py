@@ -12,10 +12,13 @@ import tempfile
 import pytest
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
-# One OpenBLAS thread per test process (set before numpy loads; children inherit it): `make test` runs two
-# processes on two cores, and numpy's default thread per core in each makes the data checks' least squares
-# spin against the other process (a diagnosis's checks: 8 s with two threads, 0.1 s with one, measured here).
+# One OpenBLAS and one OpenMP thread per test process (set before numpy and torch load; children inherit
+# them): `make test` runs two processes on two cores, and a thread per core in each spins against the other
+# process. numpy's least squares in the data checks: 8 s a diagnosis with two threads, 0.1 s with one; torch's
+# training loops likewise (test_fit: 51 s with one thread, 90 s with two; test_ppo 36 s, 69). Where a test needs
+# threads it asks for them (AdaptiveThreads, --train-threads; MuJoCo's rollouts keep theirs).
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from hypothesis import settings  # noqa: E402
 from hypothesis.configuration import set_hypothesis_home_dir  # noqa: E402
