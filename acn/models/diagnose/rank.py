@@ -42,7 +42,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from acn.models.diagnose.fitting import EffectFit, default_granularity, fit_effect, multistep_refit, refittable
+from acn.models.diagnose.fitting import GRANULARITIES, EffectFit, default_granularity, fit_effect, multistep_refit, refittable
 from acn.models.diagnose.problem import DiagnoseConfig, Problem
 from acn.toolkit.effects import Effect, Model, Parameter, get_effect
 
@@ -389,11 +389,12 @@ def finer_look(problem: Problem, model: Model, cfg: DiagnoseConfig, judge_rows: 
     diagnosis: 56 s, against 86 s with all three granularities and 25 s without the look).
 
     ``only``: the candidates looked at (``add.greedy``: the effects it added, beside those added
-    after them)."""
+    after them). No granularity finer than ``cfg.finest`` is fitted (``--finest``)."""
     shared = [c for c in ranking if c.fit.granularity == "shared" and (only is None or c.name in only)
               and any(p.per_joint for p in c.fit.effect.parameters)]
     rows = rank_rows(problem, cfg)
     granularities, least_removed = (("joint",), STRUCTURED_SHARE) if floor_says_noise else (FINER, 0.0)
+    granularities = tuple(g for g in granularities if GRANULARITIES.index(g) <= GRANULARITIES.index(cfg.finest))
     out, changed = list(ranking), False
     for c in shared:
         best = c
