@@ -270,3 +270,23 @@ def test_mujoco_writes_no_log_file_into_the_working_directory(tmp_path, monkeypa
     mujoco.mj_step(m, d)
     assert d.warning[mujoco.mjtWarning.mjWARN_BADCTRL].number > 0
     assert not os.listdir(tmp_path)
+
+
+def test_an_interrupted_ppo_overwrite_leaves_the_old_run(tmp_path, monkeypatch):
+    from acn.models import ppo
+
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / ppo.RUN_MANIFEST).write_text(json.dumps({"format": ppo.RUN_FORMAT}))
+    (out / "metrics.json").write_text("{}")
+    before = _tree(out)
+    trainer = ppo.Trainer(ppo.PPOConfig(timesteps=64), out, overwrite=True, log=lambda line: None)
+    assert trainer.out != out and (trainer.out / ppo.RUN_MANIFEST).is_file()  # the new run trains beside the old
+
+    def interrupted() -> dict:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(trainer, "_run", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        trainer.run()
+    assert _tree(out) == before and [p.name for p in tmp_path.iterdir()] == ["run"]
