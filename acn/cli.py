@@ -262,13 +262,11 @@ def collect_main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         from acn.datasets.record import Interrupted, record
-
         from acn.datasets.schema import DATASET
         from acn.toolkit.hidden import ANSWER, answer_path
 
         check_output(args.out, DATASET, overwrite=args.overwrite, inputs=[args.corrector])
-        if args.corrector is not None:
-            check_input_dir(args.corrector, "corrector directory")
+        check_input_dir(args.corrector, "corrector directory")
         cfg = collect_config_from_args(args)
         if cfg.hidden_effects:
             check_output(answer_path(args.out), ANSWER, flag="the answer beside --out")
@@ -499,9 +497,7 @@ def ppo_main(argv: list[str] | None = None) -> int:
 
         from tqdm import tqdm
 
-        from acn.models.ppo import PPOConfig, Trainer, format_table, parse_overrides
-
-        from acn.models.ppo import PPO_RUN
+        from acn.models.ppo import PPO_RUN, PPOConfig, Trainer, format_table, parse_overrides
 
         if args.out is None:
             raise UserError("--timesteps needs --out DIR")
@@ -509,8 +505,7 @@ def ppo_main(argv: list[str] | None = None) -> int:
             check_output(args.out, PPO_RUN, overwrite=args.overwrite, inputs=[args.corrector])
         elif args.overwrite:
             raise UserError("--resume continues the run in --out; --overwrite would replace it: give one")
-        if args.corrector is not None:
-            check_input_dir(args.corrector, "corrector directory")
+        check_input_dir(args.corrector, "corrector directory")
         cfg = replace(PPOConfig(), timesteps=args.timesteps, refit_every=args.refit_every, eval_every=args.eval_every,
                       eval_episodes=args.eval_episodes, final_eval_episodes=args.final_eval_episodes,
                       corrector_variant=args.variant, n_envs=args.envs, seed=args.seed)
@@ -541,8 +536,7 @@ def _ppo_eval(args: argparse.Namespace) -> int:
     if args.resume or args.set:
         raise UserError("--eval takes --corrector, --episodes, --seconds, --seed, --oracle-episodes and --out only")
     check_input_dir(args.eval, "policy directory")
-    if args.corrector is not None:
-        check_input_dir(args.corrector, "corrector directory")
+    check_input_dir(args.corrector, "corrector directory")
     from acn.models.ppo import EVAL_FORMAT, PPO_EVAL, evaluate_saved, format_table, write_json
 
     check_output(args.out, PPO_EVAL, inputs=[args.eval, args.corrector])
@@ -651,9 +645,8 @@ def import_main(argv: list[str] | None = None) -> int:
     def body() -> int:
         from acn.datasets import naming
         from acn.datasets.importer import ImportConfig, import_log
-        from acn.toolkit.backends.base import PHYSICS_HZ, physics_hz_for
-
         from acn.datasets.schema import DATASET
+        from acn.toolkit.backends.base import PHYSICS_HZ, physics_hz_for
 
         check_output(args.out, DATASET, overwrite=args.overwrite, inputs=[*args.log, args.map_file])
         cfg = ImportConfig(control_hz=args.control_hz, kp=args.kp, kd=args.kd, torque_limit=args.torque_limit,
@@ -763,10 +756,11 @@ def diagnose_parser() -> argparse.ArgumentParser:
 def _check_diagnose_outputs(args: argparse.Namespace) -> None:
     """``--json``, ``--report`` and ``--save-model``: each a path of its own, checked before the run."""
     from acn.models.diagnose.report import DIAGNOSIS_JSON, REPORT
+    from acn.toolkit.backends import BACKENDS
     from acn.toolkit.effects.model import MODEL_FILE
 
     inputs = [args.measured, args.corrector, args.explain_corrector]
-    if args.model not in ("mujoco", "pybullet"):
+    if args.model not in BACKENDS:
         inputs.append(args.model)
     named: dict[Path, str] = {}
     for flag, path, kind in (("--json", args.json, DIAGNOSIS_JSON), ("--report", args.report, REPORT),
@@ -812,8 +806,7 @@ def diagnose_main(argv: list[str] | None = None) -> int:
         if args.closed_loop and args.explain_corrector is not None:
             raise UserError("--closed-loop and --explain-corrector are separate questions: ask one at a time")
         for corrector in (args.corrector, args.explain_corrector):
-            if corrector is not None:
-                check_input_dir(corrector, "corrector directory")
+            check_input_dir(corrector, "corrector directory")
         model = Model.parse(args.model)
         cfg = DiagnoseConfig(horizons=horizons, candidates=candidates, seed=args.seed,
                              step_seconds=args.step_seconds if args.step_seconds != 0 else None,

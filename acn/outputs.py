@@ -124,8 +124,11 @@ def refuse_foreign(path: Path, kind: Output, overwrite: bool) -> None:
         raise UserError(f"{path} is not a {kind.what} this toolkit wrote; refusing to replace it")
 
 
-def check_input_dir(path: Path, what: str) -> Path:
-    """An input directory that exists; one line naming what it is where it is a file or missing."""
+def check_input_dir(path: Path | None, what: str) -> Path | None:
+    """An input directory that exists; one line naming what it is where it is a file or missing
+    (None stays None: the option was not given)."""
+    if path is None:
+        return None
     if path.is_file():
         raise UserError(f"{path} is a file, not a {what}")
     if not path.is_dir():

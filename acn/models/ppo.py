@@ -58,7 +58,7 @@ from torch import nn
 
 from acn.atomic import move_into_place, temporary_beside, write_file
 from acn.errors import UserError
-from acn.outputs import Output, check_output, json_with_format
+from acn.outputs import Output, json_with_format, refuse_foreign
 from acn.models.acn import INPUT_CHANNELS
 from acn.models.corrector import Corrector, load_for_target
 from acn.models.threads import torch_threads
@@ -519,7 +519,7 @@ class Trainer:
             if self.state.timesteps >= self.cfg.timesteps:
                 raise UserError(f"{self.out} already has {self.state.timesteps} timesteps; ask for more with --timesteps")
         else:
-            check_output(self.out, PPO_RUN, overwrite=overwrite, inputs=[corrector_dir] if corrector_dir else [])
+            refuse_foreign(self.out, PPO_RUN, overwrite)
             self.cfg, self.state = cfg, RunState()
         if resume and corrector_dir is not None:
             raise UserError("--resume continues with the checkpoint's corrector; drop --corrector")
