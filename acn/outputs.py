@@ -50,11 +50,14 @@ def json_object(path: Path) -> dict | None:
     return value if isinstance(value, dict) else None
 
 
-def json_with_format(prefix: str) -> Callable[[Path], bool]:
-    """A recogniser: a JSON object whose ``"format"`` starts with ``prefix`` (e.g. ``acn-diagnosis/``)."""
+def json_with_format(fmt: str) -> Callable[[Path], bool]:
+    """A recogniser: a JSON object whose ``"format"`` is of ``fmt``'s family (``acn-diagnosis/1``
+    recognises any ``acn-diagnosis/N``)."""
+    family = fmt.split("/")[0] + "/"
+
     def recognise(path: Path) -> bool:
         d = json_object(path) if path.is_file() else None
-        return d is not None and str(d.get("format", "")).startswith(prefix)
+        return d is not None and str(d.get("format", "")).startswith(family)
 
     return recognise
 

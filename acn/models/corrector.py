@@ -26,7 +26,7 @@ WEIGHTS, CONFIG = "model.safetensors", "config.json"
 FORMAT = "acn-corrector/1"
 # A corrector directory is recognised by its card (config.json with this format).
 CORRECTOR = Output("corrector directory", directory=True,
-                   recognise=lambda d: json_with_format(FORMAT.split("/")[0] + "/")(d / CONFIG))
+                   recognise=lambda d: json_with_format(FORMAT)(d / CONFIG))
 
 
 class Corrector(nn.Module):

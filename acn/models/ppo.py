@@ -77,11 +77,11 @@ RUN_MANIFEST, RUN_FORMAT, EVAL_FORMAT = "run.json", "acn-ppo-run/1", "acn-ppo-ev
 
 def _is_run(path: Path) -> bool:
     """A PPO run directory this toolkit wrote: its manifest, or a run's checkpoint state."""
-    return json_with_format("acn-ppo-run/")(path / RUN_MANIFEST) or (path / "checkpoint" / "state.json").is_file()
+    return json_with_format(RUN_FORMAT)(path / RUN_MANIFEST) or (path / "checkpoint" / "state.json").is_file()
 
 
 PPO_RUN = Output("PPO run directory", directory=True, recognise=_is_run)
-PPO_EVAL = Output("PPO evaluation JSON", directory=False, recognise=json_with_format("acn-ppo-eval/"))
+PPO_EVAL = Output("PPO evaluation JSON", directory=False, recognise=json_with_format(EVAL_FORMAT))
 REFIT_SEED_BASE = 2_000_000  # initial states of refit data: never training's or evaluation's
 
 

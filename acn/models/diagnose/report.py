@@ -94,7 +94,7 @@ def _is_report(path: Path) -> bool:
     return f'<meta name="generator" content="{GENERATOR}">'.encode() in head
 
 
-DIAGNOSIS_JSON = Output("diagnosis JSON", directory=False, recognise=json_with_format("acn-diagnosis/"))
+DIAGNOSIS_JSON = Output("diagnosis JSON", directory=False, recognise=json_with_format(FORMAT))
 REPORT = Output("diagnosis report", directory=False, recognise=_is_report)
 
 HEADLINE = ("one-step teacher-forced prediction error on held-out rows: RMS over every compared channel of "
@@ -301,15 +301,7 @@ def to_json(d: Diagnosis) -> dict:
 
 
 def write_json(d: Diagnosis, path: str | Path) -> Path:
-    return write_file(path, json.dumps(strict_json(to_json(d)), indent=2, default=_plain, allow_nan=False) + "\n")
-
-
-def _plain(o):
-    if isinstance(o, (np.floating, np.integer, np.bool_)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(type(o))
+    return write_file(path, json.dumps(strict_json(to_json(d)), indent=2, allow_nan=False) + "\n")
 
 
 # ----- terminal -------------------------------------------------------------------------------

@@ -121,4 +121,4 @@ def _short(v) -> str:
 
 # A model file the toolkit saved (``--save-model``): recognised by its format, so a hand-written
 # model is never replaced.
-MODEL_FILE = Output("model file", directory=False, recognise=json_with_format("acn-model/"))
+MODEL_FILE = Output("model file", directory=False, recognise=json_with_format(FORMAT))
