@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from acn.outputs import Output, json_object
-from acn.toolkit.state import ACTION_DIM, ACTION_NAMES, STATE_DIM, STATE_NAMES
+from acn.toolkit.state import ACTION_DIM, ACTION_NAMES, HYBRID_NAMES, STATE_DIM, STATE_NAMES
 
 if TYPE_CHECKING:
     from acn.toolkit.backends import SimConfig
@@ -45,7 +45,6 @@ NEXT_STATE = "next.observation.state"
 NEXT_FALLEN = "next.fallen"
 DONE = "next.done"
 ACTION_HYBRID = "action.hybrid"
-HYBRID_NAMES = tuple(f"{g}.{j}" for g in ("kp", "kd", "vel", "torque") for j in ACTION_NAMES)
 PER_SIMULATOR = (STATE, ACTION, EFFORT, NEXT_STATE, NEXT_FALLEN)
 
 

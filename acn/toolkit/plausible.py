@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from acn.toolkit.state import ACTION_NAMES, GROUPS, STATE_NAMES
+from acn.toolkit.state import ACTION_NAMES, GROUPS, HYBRID_NAMES
 
 _GROUP_BOUND = {"base_pos": 1e3, "base_rpy": 4 * np.pi, "joint_pos": 4 * np.pi, "base_linvel": 50.0,
                 "base_angvel": 500.0, "joint_vel": 500.0, "contact": 10.0, "imu_acc": 1e3}
@@ -39,25 +39,26 @@ STATE_BOUND = np.array([1e4 if n == "base_yaw" else _GROUP_BOUND[g] for g, names
 EFFORT_BOUND = 1e3
 ACTION_BOUND = {"position": 4 * np.pi, "torque": 1e3}
 HYBRID_BOUND = np.repeat([1e4, 1e3, 500.0, 1e3], len(ACTION_NAMES))  # kp, kd, velocity target, feedforward
-HYBRID_NAMES = tuple(f"{g}.{j}" for g in ("kp", "kd", "vel", "torque") for j in ACTION_NAMES)
+
+
+def past(values: np.ndarray, bound: np.ndarray | float) -> np.ndarray:
+    """Which values lie past ``bound`` in magnitude (an infinity does; NaN, a missing value, does not)."""
+    with np.errstate(invalid="ignore"):
+        return np.abs(np.asarray(values, dtype=np.float64)) > bound
 
 
 def beyond(values: np.ndarray, bound: np.ndarray | float) -> np.ndarray:
-    """(N,) rows with a finite value past ``bound`` in any column (NaN is not beyond: missing)."""
-    v = np.abs(np.asarray(values, dtype=np.float64))
-    with np.errstate(invalid="ignore"):
-        return np.any(np.isfinite(v) & (v > bound) | np.isinf(v), axis=-1)
+    """(N,) rows with a value past ``bound`` in any column."""
+    return past(values, bound).any(axis=-1)
 
 
 def first_beyond(values: np.ndarray, bound: np.ndarray | float, names: tuple[str, ...]) -> tuple[int, str, float] | None:
     """(row, column name, value) of the first value past ``bound``, or None."""
-    v = np.asarray(values, dtype=np.float64)
-    with np.errstate(invalid="ignore"):
-        bad = (np.abs(v) > bound) & ~np.isnan(v)
+    bad = past(values, bound)
     if not bad.any():
         return None
     row, col = np.argwhere(bad)[0]
-    return int(row), names[int(col)], float(v[row, col])
+    return int(row), names[int(col)], float(np.asarray(values)[row, col])
 
 
 def action_bound(action_mode: str, width: int) -> np.ndarray:
@@ -69,6 +70,3 @@ def action_bound(action_mode: str, width: int) -> np.ndarray:
 def action_names(width: int) -> tuple[str, ...]:
     return (ACTION_NAMES + HYBRID_NAMES)[:width]
 
-
-__all__ = ["STATE_BOUND", "EFFORT_BOUND", "ACTION_BOUND", "HYBRID_BOUND", "STATE_NAMES", "beyond", "first_beyond",
-           "action_bound", "action_names"]

@@ -55,6 +55,8 @@ STATE_NAMES: tuple[str, ...] = tuple(n for names in GROUPS.values() for n in nam
 STATE_DIM = len(STATE_NAMES)
 ACTION_NAMES: tuple[str, ...] = JOINT_NAMES
 ACTION_DIM = NUM_JOINTS
+# A hybrid (MIT-style) command's columns beside the joint targets: kp, kd, velocity target, feedforward torque.
+HYBRID_NAMES: tuple[str, ...] = tuple(f"{g}.{j}" for g in ("kp", "kd", "vel", "torque") for j in ACTION_NAMES)
 
 # Channels the simulator integrates (everything a re-simulation needs); the rest are sensors.
 DYNAMIC_GROUPS = ("base_pos", "base_rpy", "joint_pos", "base_linvel", "base_angvel", "joint_vel")
