@@ -84,6 +84,7 @@ results: $(STAMP)
 	@echo "results in $(RESULTS): acn_*/metrics.json (the correctors), *.diagnosis.json and *.report.html"
 
 test: $(STAMP)
+	$(BIN)/lint-imports
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadgroup
 
 bench: $(STAMP)

@@ -109,7 +109,7 @@ def _joint_gains(minimum: float, inclusive: bool) -> Callable[[str], "float | tu
 
 def _leg_order(text: str) -> tuple[str, ...]:
     """An argparse type: the four legs FR, FL, RR, RL in some order, comma-separated."""
-    from acn.toolkit.state import FOOT_NAMES
+    from acn.sim.state import FOOT_NAMES
 
     order = tuple(t.strip() for t in text.split(","))
     if sorted(order) != sorted(FOOT_NAMES):
@@ -156,7 +156,7 @@ def _ray_config(args: argparse.Namespace):
         return None
     if args.ray and Path(args.ray).exists():
         raise UserError(f"--ray took {args.ray!r} as a cluster address; write --ray=ADDRESS or put --ray after it")
-    from acn.toolkit.parallel import RayConfig, import_ray
+    from acn.sim.parallel import RayConfig, import_ray
 
     import_ray()
     config = RayConfig(address=args.ray or None, cpus=args.ray_cpus)
@@ -166,12 +166,12 @@ def _ray_config(args: argparse.Namespace):
 
 @contextlib.contextmanager
 def _ray_executor(args: argparse.Namespace, prog: str) -> Iterator[None]:
-    """Re-simulation batches on Ray within the block (``acn.toolkit.parallel``), or a no-op."""
+    """Re-simulation batches on Ray within the block (``acn.sim.parallel``), or a no-op."""
     config = _ray_config(args)
     if config is None:
         yield
         return
-    from acn.toolkit.parallel import ray_executor
+    from acn.sim.parallel import ray_executor
 
     with ray_executor(config.address, config.cpus) as executor:
         yield
@@ -181,8 +181,8 @@ def _ray_executor(args: argparse.Namespace, prog: str) -> Iterator[None]:
 
 # ----------------------------------------------------------------------------- acn-collect
 def collect_parser() -> argparse.ArgumentParser:
-    from acn.toolkit.backends import ACTION_MODES, BACKENDS
-    from acn.toolkit.policies import POLICIES
+    from acn.sim.backends import ACTION_MODES, BACKENDS
+    from acn.sim.policies import POLICIES
 
     p = _Parser(
         prog="acn-collect",
@@ -221,13 +221,13 @@ def collect_parser() -> argparse.ArgumentParser:
 
 
 def collect_config_from_args(args: argparse.Namespace):
-    from acn.toolkit.backends import SimConfig
-    from acn.toolkit.backends.base import physics_hz_for
-    from acn.toolkit.collector import CollectConfig
+    from acn.sim.backends import SimConfig
+    from acn.sim.backends.base import physics_hz_for
+    from acn.sim.collector import CollectConfig
 
     physics_hz = physics_hz_for(args.control_hz, args.physics_hz)
     if args.corrector is not None:
-        from acn.models.corrector import load_for_target
+        from acn.corrector.corrector import load_for_target
 
         load_for_target(args.corrector, [])  # the collected target is the simulator as is
     sim = SimConfig(physics_dt=1.0 / physics_hz, substeps=physics_hz // args.control_hz,
@@ -242,7 +242,7 @@ def _hidden_effects(specs: list[str], seed: int, sim) -> list:
     """``--hidden-effect`` arguments -> effects with values, drawn from ``seed``; no name twice."""
     import numpy as np
 
-    from acn.toolkit.hidden import parse_hidden
+    from acn.sim.hidden import parse_hidden
 
     rng = np.random.default_rng([seed, 0x41])
     out: list = []
@@ -263,7 +263,7 @@ def collect_main(argv: list[str] | None = None) -> int:
     def body() -> int:
         from acn.datasets.record import Interrupted, record
         from acn.datasets.schema import DATASET
-        from acn.toolkit.hidden import ANSWER, answer_path
+        from acn.sim.hidden import ANSWER, answer_path
 
         check_output(args.out, DATASET, overwrite=args.overwrite, inputs=[args.corrector])
         check_input_dir(args.corrector, "corrector directory")
@@ -283,7 +283,7 @@ def collect_main(argv: list[str] | None = None) -> int:
             print(f"episode {sum(counts.values())}/{cfg.episodes}: {len(ep)} steps, {ep.end}", file=sys.stderr)
 
         try:
-            from acn.models.corrector import Corrector  # the CLI loads; the collector applies
+            from acn.corrector.corrector import Corrector  # the CLI loads; the collector applies
 
             path = record(cfg, args.out, workers=args.workers, overwrite=args.overwrite, on_episode=progress,
                           ray=ray, shards=args.shards, load_corrector=Corrector.load)
@@ -295,7 +295,7 @@ def collect_main(argv: list[str] | None = None) -> int:
         ends = ", ".join(f"{v} {k}" for k, v in sorted(counts.items()))
         print(f"wrote {sum(counts.values())} episode(s) ({ends}) to {path}")
         if cfg.hidden_effects:
-            from acn.toolkit.hidden import answer_path
+            from acn.sim.hidden import answer_path
 
             print(f"hidden effect(s) applied to the {cfg.source} robot; the answer is in {answer_path(path)}")
         print(f"open it: LeRobotDataset('acn/{path.name}', root='{path}')  (set HF_HUB_OFFLINE=1)")
@@ -306,8 +306,8 @@ def collect_main(argv: list[str] | None = None) -> int:
 
 # ----------------------------------------------------------------------------- acn-fit
 def fit_parser() -> argparse.ArgumentParser:
-    from acn.models.acn import VARIANTS
-    from acn.models.fit import FitConfig
+    from acn.corrector.acn import VARIANTS
+    from acn.corrector.fit import FitConfig
 
     d = FitConfig()
     p = _Parser(prog="acn-fit", description="Fit the Action Correction Network from paired datasets written by "
@@ -383,8 +383,8 @@ def fit_main(argv: list[str] | None = None) -> int:
     args = fit_parser().parse_args(argv)
 
     def body() -> int:
-        from acn.models.corrector import CORRECTOR
-        from acn.models.fit import FitConfig, fit, save
+        from acn.corrector.corrector import CORRECTOR
+        from acn.corrector.fit import FitConfig, fit, save
 
         check_output(args.out, CORRECTOR, overwrite=args.overwrite, inputs=[*args.datasets, args.model])
         for d in args.datasets:
@@ -405,7 +405,7 @@ def fit_main(argv: list[str] | None = None) -> int:
                         train_threads=args.train_threads, cuda_graph=args.cuda_graph)
         target = None
         if args.model is not None:
-            from acn.toolkit.effects import Model
+            from acn.sim.effects import Model
 
             target = Model.parse(args.model)
         with _ray_executor(args, "acn-fit"):
@@ -436,7 +436,7 @@ def _print_fit_summary(m: dict, path: Path, physics: str | None) -> None:
               f"{o['error_corrected']:.4f} (same-state oracle {o['error_oracle']:.4f}): "
               f"share_of_oracle={o['share_of_oracle']:.3f}")
     if "closed_loop" in m:
-        from acn.models.evaluate import format_closed_loop
+        from acn.corrector.evaluate import format_closed_loop
 
         c = m["closed_loop"]
         print(format_closed_loop(c))
@@ -448,13 +448,13 @@ def _print_fit_summary(m: dict, path: Path, physics: str | None) -> None:
         if physics and c["runs"]["corrected"]["versus"]["change"]["reward_gap"] != "narrower":
             print(f"the same gap answered with physics, beside this corrector: {physics}")
     print(f"train_samples_per_s={m['train_samples_per_s']:.0f}")
-    print(f"wrote the frozen corrector to {path} (load: acn.models.Corrector.load('{path}'))")
+    print(f"wrote the frozen corrector to {path} (load: acn.corrector.Corrector.load('{path}'))")
 
 
 # ----------------------------------------------------------------------------- acn-ppo
 def ppo_parser() -> argparse.ArgumentParser:
-    from acn.models.acn import VARIANTS
-    from acn.models.ppo import PPOConfig
+    from acn.corrector.acn import VARIANTS
+    from acn.rl.ppo import PPOConfig
 
     d = PPOConfig()
     p = _Parser(prog="acn-ppo", description="Train a walking policy with PPO in PyBullet (a residual on the trot) "
@@ -497,7 +497,7 @@ def ppo_main(argv: list[str] | None = None) -> int:
 
         from tqdm import tqdm
 
-        from acn.models.ppo import PPO_RUN, PPOConfig, Trainer, format_table, parse_overrides
+        from acn.rl.ppo import PPO_RUN, PPOConfig, Trainer, format_table, parse_overrides
 
         if args.out is None:
             raise UserError("--timesteps needs --out DIR")
@@ -537,7 +537,7 @@ def _ppo_eval(args: argparse.Namespace) -> int:
         raise UserError("--eval takes --corrector, --episodes, --seconds, --seed, --oracle-episodes and --out only")
     check_input_dir(args.eval, "policy directory")
     check_input_dir(args.corrector, "corrector directory")
-    from acn.models.ppo import EVAL_FORMAT, PPO_EVAL, evaluate_saved, format_table, write_json
+    from acn.rl.ppo import EVAL_FORMAT, PPO_EVAL, evaluate_saved, format_table, write_json
 
     check_output(args.out, PPO_EVAL, inputs=[args.eval, args.corrector])
     ev = evaluate_saved(args.eval, args.corrector, args.episodes, args.seconds, args.seed, args.oracle_episodes)
@@ -587,8 +587,8 @@ def view_main(argv: list[str] | None = None) -> int:
 
 # ----------------------------------------------------------------------------- acn-import
 def import_parser() -> argparse.ArgumentParser:
-    from acn.toolkit.backends import ACTION_MODES, IMU_ACC_KINDS
-    from acn.toolkit.state import FOOT_NAMES
+    from acn.sim.backends import ACTION_MODES, IMU_ACC_KINDS
+    from acn.sim.state import FOOT_NAMES
 
     p = _Parser(prog="acn-import", description="Turn a robot log (CSV, Parquet, JSON lines, HDF5 or .npz, one row per control "
                 "step) into a measurement dataset (LeRobot v3.0, the schema of acn-collect) that acn-diagnose reads.")
@@ -629,7 +629,7 @@ def import_parser() -> argparse.ArgumentParser:
 
 def _estimated(missing: list[str]) -> str:
     """How ``fill_derived`` estimates the missing dynamic channels, in words ("" if none is missing)."""
-    from acn.toolkit.state import GROUPS
+    from acn.sim.state import GROUPS
 
     lacks = {g for g, names in GROUPS.items() if set(names) & set(missing)}
     odometry = "base_pos" in lacks
@@ -643,10 +643,10 @@ def import_main(argv: list[str] | None = None) -> int:
     args = import_parser().parse_args(argv)
 
     def body() -> int:
-        from acn.datasets import naming
-        from acn.datasets.importer import ImportConfig, import_log
+        from acn.measurements import naming
+        from acn.measurements.importer import ImportConfig, import_log
         from acn.datasets.schema import DATASET
-        from acn.toolkit.backends.base import PHYSICS_HZ, physics_hz_for
+        from acn.sim.backends.base import PHYSICS_HZ, physics_hz_for
 
         check_output(args.out, DATASET, overwrite=args.overwrite, inputs=[*args.log, args.map_file])
         cfg = ImportConfig(control_hz=args.control_hz, kp=args.kp, kd=args.kd, torque_limit=args.torque_limit,
@@ -659,7 +659,7 @@ def import_main(argv: list[str] | None = None) -> int:
               f"{r.dropped_short} one-row segment(s)")
         if r.cut_implausible:
             print(f"cut {r.cut_implausible} row(s) with values no A1 can produce (first: {r.implausible_example}; "
-                  "the bounds: acn.toolkit.plausible)")
+                  "the bounds: acn.sim.plausible)")
         if r.malformed:
             lines = ", ".join(r.malformed[:5]) + (", ..." if len(r.malformed) > 5 else "")
             print(f"set aside {len(r.malformed)} row(s) with another number of fields than the header "
@@ -707,7 +707,7 @@ def import_main(argv: list[str] | None = None) -> int:
 
 # ----------------------------------------------------------------------------- acn-diagnose
 def diagnose_parser() -> argparse.ArgumentParser:
-    from acn.models.diagnose import DiagnoseConfig
+    from acn.diagnosis import DiagnoseConfig
 
     d = DiagnoseConfig()
     p = _Parser(prog="acn-diagnose", description="Compare a model with measurements, show where it fails, rank "
@@ -755,9 +755,9 @@ def diagnose_parser() -> argparse.ArgumentParser:
 
 def _check_diagnose_outputs(args: argparse.Namespace) -> None:
     """``--json``, ``--report`` and ``--save-model``: each a path of its own, checked before the run."""
-    from acn.models.diagnose.report import DIAGNOSIS_JSON, REPORT
-    from acn.toolkit.backends import BACKENDS
-    from acn.toolkit.effects.model import MODEL_FILE
+    from acn.diagnosis.report import DIAGNOSIS_JSON, REPORT
+    from acn.sim.backends import BACKENDS
+    from acn.sim.effects.model import MODEL_FILE
 
     inputs = [args.measured, args.corrector, args.explain_corrector]
     if args.model not in BACKENDS:
@@ -777,17 +777,17 @@ def diagnose_main(argv: list[str] | None = None) -> int:
     args = diagnose_parser().parse_args(argv)
 
     def body() -> int:
-        from acn.toolkit.effects import describe_catalogue, get_effect
+        from acn.sim.effects import describe_catalogue, get_effect
 
         if args.list_effects:
             print(describe_catalogue())
             return 0
         if args.measured is None:
             raise UserError("give the measurement dataset (or --list-effects)")
-        from acn.datasets.measurements import load_measurements
-        from acn.models.diagnose import DiagnoseConfig, diagnose, explain_corrector
-        from acn.models.diagnose.report import terminal, write_html, write_json
-        from acn.toolkit.effects import EFFECT_NAMES, Model
+        from acn.measurements.data import load_measurements
+        from acn.diagnosis import DiagnoseConfig, diagnose, explain_corrector
+        from acn.diagnosis.report import terminal, write_html, write_json
+        from acn.sim.effects import EFFECT_NAMES, Model
 
         try:
             horizons = tuple(sorted({int(h) for h in args.horizons.split(",")}))
@@ -814,11 +814,11 @@ def diagnose_main(argv: list[str] | None = None) -> int:
         cfg.validate()
         data = load_measurements(args.measured, side=args.side)
         if args.closed_loop:  # refuse a log that cannot be re-run before the diagnosis, not after
-            from acn.models.diagnose.transfer import robot_config
+            from acn.diagnosis.transfer import robot_config
 
             robot_config(args.measured, data, args.side, model, args.closed_loop, args.closed_loop_seconds,
                          args.corrector)
-        from acn.models.corrector import load_for_target
+        from acn.corrector.corrector import load_for_target
 
         for corrector in (model.corrector, args.corrector, args.explain_corrector):
             if corrector:  # each is applied to the model as given
@@ -837,11 +837,11 @@ def diagnose_main(argv: list[str] | None = None) -> int:
             else:
                 result = diagnose(data, model, cfg, add=args.add, automatic=args.auto, progress=say)
             if args.limits:
-                from acn.models.diagnose.pipeline import rule_out
+                from acn.diagnosis.pipeline import rule_out
 
                 result.limits = rule_out(result, cfg.candidates, one_joint=args.limits_per_joint, progress=say)
             if args.closed_loop:
-                from acn.models.diagnose.transfer import closed_loop_models
+                from acn.diagnosis.transfer import closed_loop_models
 
                 say("closed loop")
                 result.closed_loop = closed_loop_models(args.measured, data, args.side, model, result.final.model,

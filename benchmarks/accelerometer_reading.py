@@ -3,7 +3,7 @@
 Every log of ``benchmarks/diagnose_cases.py`` (the first set at typical sensor noise, the
 ``--other`` set at twice typical; 4 x 10 s, the same seeds) is written twice, with the schema's
 mean reading and with MuJoCo's sensor (an instant), imported without ``--imu-acc`` and judged
-under the nominal model (``acn.models.diagnose.accelerometer.read_accelerometer``): first by
+under the nominal model (``acn.diagnosis.accelerometer.read_accelerometer``): first by
 integrating the accelerometer against the trunk's velocity (the logged one; with ``--no-mocap``
 the legs'), else by the model. One line per log, and ``name=value`` totals:
 
@@ -30,12 +30,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import diagnose_cases as cases  # noqa: E402
 from robot_log import write_log  # noqa: E402
 
-from acn.datasets.importer import import_log  # noqa: E402
-from acn.datasets.measurements import load_measurements  # noqa: E402
-from acn.models.diagnose import DiagnoseConfig  # noqa: E402
-from acn.models.diagnose.accelerometer import read_accelerometer  # noqa: E402
-from acn.models.diagnose.problem import prepare  # noqa: E402
-from acn.toolkit.effects import Model  # noqa: E402
+from acn.measurements.importer import import_log  # noqa: E402
+from acn.measurements.data import load_measurements  # noqa: E402
+from acn.diagnosis import DiagnoseConfig  # noqa: E402
+from acn.diagnosis.accelerometer import read_accelerometer  # noqa: E402
+from acn.diagnosis.problem import prepare  # noqa: E402
+from acn.sim.effects import Model  # noqa: E402
 
 SETS = {"first": (cases.CASES, 100, 1.0), "other": (cases.OTHER, 700, 2.0)}  # cases, first seed, noise
 

@@ -26,9 +26,9 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 import mujoco  # noqa: E402
 
 from acn.datasets.record import record  # noqa: E402
-from acn.toolkit.backends import make_backend  # noqa: E402
-from acn.toolkit.collector import CollectConfig, initial_state  # noqa: E402
-from acn.toolkit.policies import Trot  # noqa: E402
+from acn.sim.backends import make_backend  # noqa: E402
+from acn.sim.collector import CollectConfig, initial_state  # noqa: E402
+from acn.sim.policies import Trot  # noqa: E402
 
 
 def raw_rate(name: str, steps: int) -> float:

@@ -23,13 +23,13 @@ from pathlib import Path
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
-from acn.datasets.measurements import load_measurements  # noqa: E402
+from acn.measurements.data import load_measurements  # noqa: E402
 from acn.datasets.record import record  # noqa: E402
-from acn.models.diagnose import DiagnoseConfig, diagnose  # noqa: E402
-from acn.toolkit.backends import SimConfig  # noqa: E402
-from acn.toolkit.collector import CollectConfig  # noqa: E402
-from acn.toolkit.effects import Model, get_effect  # noqa: E402
-from acn.toolkit.effects.effect import AppliedEffect  # noqa: E402
+from acn.diagnosis import DiagnoseConfig, diagnose  # noqa: E402
+from acn.sim.backends import SimConfig  # noqa: E402
+from acn.sim.collector import CollectConfig  # noqa: E402
+from acn.sim.effects import Model, get_effect  # noqa: E402
+from acn.sim.effects.effect import AppliedEffect  # noqa: E402
 
 
 def main() -> None:

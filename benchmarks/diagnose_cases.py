@@ -13,7 +13,7 @@ line per case and ``name=value`` totals:
 With ``--other``, the ``OTHER`` cases instead: values and seeds the rules were not made on.
 With ``--no-mocap``, the logs lack the trunk's position and linear velocity (no motion capture:
 an IMU and encoders only), which the diagnosis estimates by leg odometry
-(``acn.datasets.odometry``); ``--no-contacts`` leaves out the foot contact flags too.
+(``acn.measurements.odometry``); ``--no-contacts`` leaves out the foot contact flags too.
 
 With ``--feedback G``, every log's controller adds an attitude feedback on the measured, noisy
 roll, pitch and gyro (``robot_log._level``, G its gain multiple; 1 keeps the pace gait upright):
@@ -54,7 +54,7 @@ With ``--stance-torque``, the controllers are MPC-style on the same clock: legs 
 With ``--accelerometer sensor``, the logs' accelerometer is MuJoCo's sensor, read at each row's
 instant (``robot_log.LogSpec.accelerometer``), not the schema's mean over the control step; the
 logs are imported without ``--imu-acc``, so the diagnosis judges the reading (each line's
-``imu=``, ``acn.models.diagnose.accelerometer``); ``--imu-acc mean|instant`` states it on import
+``imu=``, ``acn.diagnosis.accelerometer``); ``--imu-acc mean|instant`` states it on import
 instead (as ``acn-import --imu-acc``).
 
 With ``--pairs``, logs with TWO hidden effects instead (``--auto``), one line each and:
@@ -100,15 +100,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from robot_log import LogSpec, welded_payload, write_log  # noqa: E402
 
-from acn.datasets.importer import ImportConfig, import_log  # noqa: E402
-from acn.datasets.measurements import load_measurements  # noqa: E402
-from acn.models.diagnose import DiagnoseConfig, diagnose  # noqa: E402
-from acn.models.diagnose.pipeline import rule_out  # noqa: E402
-from acn.toolkit.backends import IMU_ACC_KINDS  # noqa: E402
-from acn.toolkit.effects import CATALOGUE, Model  # noqa: E402
-from acn.toolkit.effects.catalogue import pd_gains_as_strength_damping, strength_damping_as_pd_gains  # noqa: E402
-from acn.toolkit.robot import URDF_JOINT  # noqa: E402
-from acn.toolkit.state import GROUPS, JOINT_NAMES  # noqa: E402
+from acn.measurements.importer import ImportConfig, import_log  # noqa: E402
+from acn.measurements.data import load_measurements  # noqa: E402
+from acn.diagnosis import DiagnoseConfig, diagnose  # noqa: E402
+from acn.diagnosis.pipeline import rule_out  # noqa: E402
+from acn.sim.backends import IMU_ACC_KINDS  # noqa: E402
+from acn.sim.effects import CATALOGUE, Model  # noqa: E402
+from acn.sim.effects.catalogue import pd_gains_as_strength_damping, strength_damping_as_pd_gains  # noqa: E402
+from acn.sim.robot import URDF_JOINT  # noqa: E402
+from acn.sim.state import GROUPS, JOINT_NAMES  # noqa: E402
 
 OFFSETS = np.array([0.05, -0.08, 0.1, -0.04, 0.06, -0.12, 0.03, 0.09, -0.07, -0.1, 0.04, 0.08])
 WEAK = np.array([1.0, 1.0, 0.5, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0])  # FR_calf at half strength

@@ -44,15 +44,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from diagnose_helpers import FAST, close, measured, noisy_log  # noqa: E402
 from robot_log import LogSpec, welded_payload, write_log  # noqa: E402
 
-from acn.datasets.checks import repeated_transitions  # noqa: E402
-from acn.datasets.importer import ImportConfig, import_log  # noqa: E402
-from acn.datasets.measurements import load_measurements  # noqa: E402
-from acn.models.diagnose import DiagnoseConfig, diagnose  # noqa: E402
-from acn.models.diagnose.problem import prepare  # noqa: E402
-from acn.models.diagnose.rank import doubt  # noqa: E402
-from acn.models.diagnose.report import terminal, to_json, write_html  # noqa: E402
-from acn.toolkit.effects import Model, get_effect  # noqa: E402
-from acn.toolkit.state import GROUPS, JOINT_NAMES  # noqa: E402
+from acn.measurements.checks import repeated_transitions  # noqa: E402
+from acn.measurements.importer import ImportConfig, import_log  # noqa: E402
+from acn.measurements.data import load_measurements  # noqa: E402
+from acn.diagnosis import DiagnoseConfig, diagnose  # noqa: E402
+from acn.diagnosis.problem import prepare  # noqa: E402
+from acn.diagnosis.rank import doubt  # noqa: E402
+from acn.diagnosis.report import terminal, to_json, write_html  # noqa: E402
+from acn.sim.effects import Model, get_effect  # noqa: E402
+from acn.sim.state import GROUPS, JOINT_NAMES  # noqa: E402
 
 CHECKS: dict = {}  # name -> function(tmp: Path, value: dict); value collects what the check measured
 SHARED: list[Path] = []  # the folder of the logs several checks read (``noisy_log``)
@@ -149,7 +149,7 @@ def each_hidden_effect(name: str, tmp: Path, value: dict) -> None:
     assert added.judgement.removed >= 0.8 and added.judgement.explained(d.floor_mse) >= 0.8
     assert added.after.headline < added.before.headline
     if name == "encoder_offset":
-        from acn.models.diagnose.add import refine_chain
+        from acn.diagnosis.add import refine_chain
 
         residual = d.problem.residual_of(Model.parse("mujoco").sim_config(d.problem.control), d.judge_rows)
         assert added.refined and refine_chain(d.problem, d.before, d.added, cfg, d.judge_rows, residual) is d.added
@@ -178,7 +178,7 @@ def a_candidate_whose_final_fit_is_set_aside_gives_way_to_the_runner_up(tmp, val
     not (a bound too high for ground_softness on the trot gap). The chain goes on with the
     runner-up, and the verdict never names the effect set aside. The real rule is replaced by one
     that refuses the true effect, so the path runs on every machine."""
-    from acn.models.diagnose import add
+    from acn.diagnosis import add
 
     real = add.final_doubt
     refuse = lambda step: "refused for the test" if step.name == "joint_damping" else real(step)  # noqa: E731
@@ -204,7 +204,7 @@ def an_implausible_finer_fit_gives_way_to_the_coarser_one_it_beat(tmp, value):
     is implausible (a hip damping the pace gait hardly moves runs to the bound), the shared fit is
     made final instead of setting the effect aside whole. The real rule is replaced by one that
     refuses the per-type fit, so the path runs on every machine."""
-    from acn.models.diagnose import add
+    from acn.diagnosis import add
 
     data = measured(tmp, {"joint_damping": {"value": [0.1, 0.8, 0.4] * 4}})
     cfg = replace(FAST, finest="type")
@@ -227,8 +227,8 @@ def a_richer_effect_gives_way_to_a_simpler_one_beside_the_others(tmp, value):
     """Strength 0.85 and friction 0.2 hidden; both PD gains added first (as greedy adding can on
     noisy logs), then friction. Judged again beside friction, the gains give way to the simpler
     motor_strength and the chain is refitted (``add.revisit``)."""
-    from acn.models.diagnose.add import revisit
-    from acn.models.diagnose.rank import ties_of
+    from acn.diagnosis.add import revisit
+    from acn.diagnosis.rank import ties_of
 
     data = measured(tmp, {"motor_strength": {"scale": 0.85}, "joint_friction": {"value": 0.2}})
     nominal = Model.parse("mujoco")
@@ -258,7 +258,7 @@ def an_added_effect_no_longer_significant_beside_the_others_is_left_out(tmp, val
     """Damping 0.5 hidden; the ground's softness added first, then the damping. Judged again beside
     the damping the softness is not significant, and the chain without it predicts as well, so it
     is left out (``add.revisit``); the damping is kept."""
-    from acn.models.diagnose.add import revisit
+    from acn.diagnosis.add import revisit
 
     data = measured(tmp, {"joint_damping": {"value": 0.5}})
     nominal = Model.parse("mujoco")
@@ -279,7 +279,7 @@ def two_effects_one_stood_in_for_are_found_from_another_start(tmp, value):
     trunk). Started from the next candidates instead, a chain with the payload predicts the
     held-out rows and 5-step rollouts clearly better and replaces it (``add.other_starts``); every
     chain tried is reported with why it was kept or set aside."""
-    from acn.models.diagnose.add import other_starts
+    from acn.diagnosis.add import other_starts
 
     data = measured(tmp, {"payload": {"mass": 2.0}, "joint_damping": {"value": 0.4}})
     nominal = Model.parse("mujoco")
@@ -343,7 +343,7 @@ def effects_that_fit_the_noise_in_the_start_states_are_set_aside(tmp, value):
     remove 8 %, not a third): a dozen encoder offsets lower the one-step error by a third (noisy
     joint readings press the feet into the ground on average), but make the 25-step open-loop
     prediction worse; they are not named, and the verdict is none."""
-    from acn.models.diagnose.rank import one_step_only
+    from acn.diagnosis.rank import one_step_only
 
     path, _ = _imported(tmp, LogSpec(noise=1.0, seed=7, control_hz=100, kp=40.0, kd=1.0, seconds=6.0, episodes=3),
                         config=ImportConfig(100, 40.0, 1.0, 33.5))
@@ -365,7 +365,7 @@ def a_robot_lying_on_its_back_without_any_effect_is_none(tmp, value):
     height decides how deep the robot starts in the ground, and encoder offsets of a few mrad
     remove 40 % of the one-step error. Set aside for their size, what they remove is noise: the
     verdict is none, not "unexplained"."""
-    from acn.models.diagnose.rank import fits_noise_by_size
+    from acn.diagnosis.rank import fits_noise_by_size
 
     path, _ = _imported(tmp, LogSpec(seconds=10.0, episodes=4, seed=708, controller="pace"))
     d = diagnose(load_measurements(path), Model.parse("mujoco"), FAST)
@@ -383,8 +383,8 @@ def the_smallest_effect_a_log_shows_is_where_a_hidden_one_is_named(tmp, value):
     """``--limits`` on a noisy log without effects: the smallest joint damping ``--auto`` would name.
     The same log (same seed, same noise) written with damping at 2.5x that is named, at 0.3x not.
     Beside PD gains a strength is absorbed by them (the residual is the same: the gains nominal)."""
-    from acn.models.diagnose.limits import limits, sizes
-    from acn.models.diagnose.pipeline import rule_out
+    from acn.diagnosis.limits import limits, sizes
+    from acn.diagnosis.pipeline import rule_out
 
     cfg = replace(FAST, candidates=("joint_damping", "motor_strength", "joint_friction", "armature"))
     d = diagnose(load_measurements(noisy_log(shared(), "nominal")), Model.parse("mujoco"), cfg, automatic=True)
@@ -420,8 +420,8 @@ def one_joint_alone_is_named_where_its_limit_says_and_not_short_of_it(tmp, value
     The log shows it far less than on every joint alike (one joint's fit must remove 15 % of the
     error where the floor calls it noise); FR_calf's damping is written at twice the grid size
     first shown there (named, per joint, on FR_calf) and at the size below (not named)."""
-    from acn.models.diagnose.pipeline import rule_out
-    from acn.toolkit.robot import URDF_JOINT
+    from acn.diagnosis.pipeline import rule_out
+    from acn.sim.robot import URDF_JOINT
 
     cfg = replace(FAST, candidates=("joint_damping", "motor_strength", "joint_friction", "armature"))
     d = diagnose(load_measurements(noisy_log(shared(), "nominal")), Model.parse("mujoco"), cfg, automatic=True)
@@ -766,7 +766,7 @@ def actions_logged_one_row_late_are_named_and_shifted_back_on_import(tmp, value)
     import pyarrow.csv as pacsv
     from robot_log import simulate
 
-    from acn.models.diagnose.pairing import action_row
+    from acn.diagnosis.pairing import action_row
 
     rows = simulate(LogSpec(seconds=4.0, episodes=2, seed=31, noise=1.0))
     pacsv.write_csv(pa.table(rows), str(tmp / "log.csv"))
@@ -801,7 +801,7 @@ def a_log_simulated_at_a_coarser_physics_rate_is_named_and_right_when_imported_a
     import pyarrow.csv as pacsv
     from robot_log import simulate
 
-    from acn.models.diagnose.rate import physics_rate
+    from acn.diagnosis.rate import physics_rate
 
     pacsv.write_csv(pa.table(simulate(LogSpec(seconds=4.0, episodes=2, seed=31, noise=1.0, physics_hz=200))),
                     str(tmp / "coarse.csv"))
@@ -835,7 +835,7 @@ def an_accelerometer_read_at_each_instant_is_recognised_and_compared_so(tmp, val
     dataset that states its reading (acn-import --imu-acc) is taken at its word. Read so, the
     model with the hidden damping predicts the accelerometer within a few per cent; read as the
     mean, it cannot (measured: 0.022 against 0.64 after the damping is added, noise-free)."""
-    from acn.models.diagnose.accelerometer import predicted_better, read_accelerometer
+    from acn.diagnosis.accelerometer import predicted_better, read_accelerometer
 
     no_mocap = tuple(GROUPS["base_pos"] + GROUPS["base_linvel"])
     logs = {"sensor": (LogSpec(seed=5, controller="pace", accelerometer="sensor", spec_edit=_damping(0.5)), []),
@@ -896,9 +896,9 @@ def the_legs_velocity_reads_an_instant_accelerometer_and_checks_a_logged_velocit
     import pyarrow.csv as pacsv
     from robot_log import simulate
 
-    from acn.datasets.odometry import world_acceleration
-    from acn.models.diagnose.accelerometer import read_accelerometer
-    from acn.toolkit.rotations import rpy_to_matrices
+    from acn.measurements.odometry import world_acceleration
+    from acn.diagnosis.accelerometer import read_accelerometer
+    from acn.sim.rotations import rpy_to_matrices
 
     cols = simulate(LogSpec(seconds=10.0, episodes=4, seed=100, noise=1.0, accelerometer="sensor"))
     rot = rpy_to_matrices(np.stack([cols[n] for n in GROUPS["base_rpy"]], 1))
@@ -938,7 +938,7 @@ def an_instant_accelerometer_a_model_far_from_the_robot_hides_is_read_again_with
     accelerometer no better than the mean (measured: 63 % of the error, better in 49 % of the
     rows): read as the mean. With damping and armature added the instant reading is clearly
     better (6 %, 96 %): the diagnosis runs again reading it so, and says why."""
-    from acn.models.diagnose import accelerometer
+    from acn.diagnosis import accelerometer
 
     def other_model(spec):
         for j in spec.joints:
@@ -969,7 +969,7 @@ def an_instant_accelerometer_a_model_far_from_the_robot_hides_is_read_again_with
 @check
 def noisy_joint_readings_do_not_bias_the_fitted_friction(tmp, value):
     """Least squares from noisy start states over-estimates friction; the instrumental refit does not."""
-    from acn.models.diagnose.fitting import fit_effect, instrumental_refit
+    from acn.diagnosis.fitting import fit_effect, instrumental_refit
 
     cfg = DiagnoseConfig(horizons=(1,), fit_rows=1500)
     problem = prepare(load_measurements(noisy_log(shared(), "friction")), Model.parse("mujoco"), cfg)
@@ -1000,8 +1000,8 @@ def noisy_start_states_do_not_make_a_payload_light(tmp, value):
     (``fitting.multistep_refit``). Where the one-step fit ran into a corner (a light mass far above
     the trunk: implausible), the ranking refits over five steps from the realistic middle
     (``rank.over_steps_from_realistic``) and finds the payload."""
-    from acn.models.diagnose.fitting import fit_effect, multistep_refit
-    from acn.models.diagnose.rank import implausible, over_steps_from_realistic
+    from acn.diagnosis.fitting import fit_effect, multistep_refit
+    from acn.diagnosis.rank import implausible, over_steps_from_realistic
 
     path, _ = _imported(tmp, LogSpec(noise=1.0, seed=4809, seconds=10.0, episodes=2, controller="pace",
                                      spec_edit=welded_payload(1.82, [-0.0308, -0.0518, 0.0056])))

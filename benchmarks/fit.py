@@ -3,14 +3,14 @@
 baseline_samples_per_s   the paper authors' loop: a per-sample torch Dataset of tensors and a
                          DataLoader (batch 256, shuffle), ActionNet + JacobianNet, their loss
                          (J delta_a by torch.bmm, autograd), Adam
-fit_samples_per_s        acn-fit's loop (acn.models.fit.train): tensors held whole, batches gathered
+fit_samples_per_s        acn-fit's loop (acn.corrector.fit.train): tensors held whole, batches gathered
                          into preallocated buffers, the networks' forward and backward written out on
-                         one flat parameter buffer (acn.models.backprop: the two first layers as one
+                         one flat parameter buffer (acn.corrector.backprop: the two first layers as one
                          matmul, fused Adam), bf16 weights where the CPU has native bf16 (fit_bf16=1),
                          the loss's gradient written out
 fit_threads              the torch thread count acn-fit's loop ended on: by default it times one
                          thread against all of them every few seconds and runs on the faster
-                         (acn.models.threads.AdaptiveThreads)
+                         (acn.corrector.threads.AdaptiveThreads)
 fit_speedup              fit / baseline, each on its default threads (the baseline on torch's,
                          all cores); target >= 2.5
 fit_1_thread_samples_per_s  acn-fit's loop held on one thread (--train-threads 1)
@@ -23,7 +23,7 @@ matmul_gflops            this machine's float32 matmul rate on the network's wid
 matmul_bf16_gflops       the same in bf16
 fit_fraction_of_matmul   fit_gflops / matmul_gflops
 million_frames_10_epochs_s  projected time for 1M frames x 10 epochs at fit_samples_per_s
-label_rows_per_s         Gauss-Newton same-state labels (acn.models.labels.solve, acn-fit's default
+label_rows_per_s         Gauss-Newton same-state labels (acn.corrector.labels.solve, acn-fit's default
                          solve) on real paired trot rows, with 1 and 2 re-simulation threads
 label_simulator_share    the share of the labelling time spent inside the re-simulation (MuJoCo)
 label_thread_scaling     label_rows_per_s with 2 threads / with 1
@@ -55,10 +55,10 @@ from typing import Iterator
 import torch
 from torch.utils.data import DataLoader, Dataset
 
-from acn.models.acn import INPUT_CHANNELS, OUTPUT_CHANNELS
-from acn.models.corrector import Corrector, default_config
-from acn.models.fit import FitConfig, Split, train
-from acn.models.threads import torch_threads
+from acn.corrector.acn import INPUT_CHANNELS, OUTPUT_CHANNELS
+from acn.corrector.corrector import Corrector, default_config
+from acn.corrector.fit import FitConfig, Split, train
+from acn.corrector.threads import torch_threads
 
 N_IN, N_OUT, N_ACT = len(INPUT_CHANNELS) + 12, len(OUTPUT_CHANNELS), 12
 
@@ -240,11 +240,11 @@ def gpu(x: torch.Tensor, r: torch.Tensor, epochs: int, device: str) -> None:
 
 def labelling(rows: int) -> None:
     """Label speed on real rows: a short paired trot, labels from the source states."""
-    from acn.models.evaluate import typical_spread
-    from acn.models.labels import solve
-    from acn.models.oracle import OUTPUT_INDEX
-    from acn.toolkit.collector import CollectConfig, collect_episodes
-    from acn.toolkit.resim import Resimulator
+    from acn.corrector.evaluate import typical_spread
+    from acn.corrector.labels import solve
+    from acn.corrector.oracle import OUTPUT_INDEX
+    from acn.sim.collector import CollectConfig, collect_episodes
+    from acn.sim.resim import Resimulator
 
     ccfg = CollectConfig(target="mujoco", policy="trot", episodes=1, seconds=rows * 0.02, seed=0)
     (ep,) = collect_episodes(ccfg, [0])

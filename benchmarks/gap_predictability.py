@@ -3,12 +3,12 @@
 The same-state oracle knows each held-out row's gap; a corrector sees only (s, a). Here the gap
 itself is regressed on (s, a): the weighted same-state residual W (s'_src - T_mujoco(s_src, a)) on
 the 33 output channels (W = 1 / the training spread, as acn-fit's labels and one-step error),
-labelled by the oracle's solve (``acn.models.fit.same_state_rows``), inputs the 33 dynamic state
+labelled by the oracle's solve (``acn.corrector.fit.same_state_rows``), inputs the 33 dynamic state
 channels and the action, episodes split as acn-fit splits them. Two regressions, trained on the
 first quarter, half and all of the training episodes:
 
 - ``linear``: ridge regression (lambda 1 on standardised inputs);
-- ``mlp``: ``acn.models.acn.mlp`` (2 x 256, SiLU), Adam 1e-3, batch 128, 40 epochs; the BEST
+- ``mlp``: ``acn.corrector.acn.mlp`` (2 x 256, SiLU), Adam 1e-3, batch 128, 40 epochs; the BEST
   held-out R^2 over the epochs is printed (chosen on the held-out rows themselves: optimistic).
 
 ``--foot-kinematics`` adds what the contact sees, which an MLP would have to learn from the joint
@@ -37,8 +37,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from acn.models.acn import DYNAMIC_INPUT_CHANNELS, OUTPUT_CHANNELS, mlp
-from acn.toolkit.state import GROUPS, STATE_NAMES
+from acn.corrector.acn import DYNAMIC_INPUT_CHANNELS, OUTPUT_CHANNELS, mlp
+from acn.sim.state import GROUPS, STATE_NAMES
 
 
 def r2(pred: np.ndarray, y: np.ndarray, mean: np.ndarray) -> float:
@@ -55,8 +55,8 @@ def foot_kinematics(states: np.ndarray) -> np.ndarray:
     """(T, 16): the 4 feet's heights above the ground (m), then their world velocities (m/s)."""
     import mujoco
 
-    from acn.toolkit.backends.mujoco_backend import PhysicsLayout
-    from acn.toolkit.kinematics import FOOT_RADIUS, RobotKinematics
+    from acn.sim.backends.mujoco_backend import PhysicsLayout
+    from acn.sim.kinematics import FOOT_RADIUS, RobotKinematics
 
     kin = RobotKinematics()
     m, d = kin.model, kin.data
@@ -105,11 +105,11 @@ def gap_rows(path: str, foot: bool, gap_only: bool) -> dict[str, np.ndarray]:
     """
     from acn.datasets.reader import load_paired
     from acn.datasets.record import config_from_metadata
-    from acn.models.evaluate import output_spread
-    from acn.models.fit import FitConfig, same_state_rows, split_episodes
-    from acn.models.oracle import OUTPUT_INDEX
-    from acn.models.sensitivity import channel_difference
-    from acn.toolkit.resim import Resimulator
+    from acn.corrector.evaluate import output_spread
+    from acn.corrector.fit import FitConfig, same_state_rows, split_episodes
+    from acn.corrector.oracle import OUTPUT_INDEX
+    from acn.corrector.sensitivity import channel_difference
+    from acn.sim.resim import Resimulator
 
     fit_cfg = FitConfig().resolved()
     data = load_paired([path])

@@ -1,7 +1,7 @@
 """How well leg odometry recovers the trunk's height and velocity of logs without motion capture.
 
 Each dataset is read twice: as recorded, and with its trunk position and linear velocity left
-out, which ``fill_derived`` then estimates (``acn.datasets.odometry``). Prints, over the rows
+out, which ``fill_derived`` then estimates (``acn.measurements.odometry``). Prints, over the rows
 where the robot stands (trunk above 0.15 m, after its first 10 control steps), the median and
 90th percentile of the height error (mm) and of the velocity error's norm (m/s), against the
 velocity's spread, as ``name=value`` lines:
@@ -30,10 +30,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from robot_log import LogSpec, write_log  # noqa: E402
 
-import acn.datasets.odometry as odometry  # noqa: E402
-from acn.datasets.importer import ImportConfig, import_log  # noqa: E402
-from acn.datasets.measurements import Measurements, fill_derived, load_measurements  # noqa: E402
-from acn.toolkit.state import GROUPS, SLICES  # noqa: E402
+import acn.measurements.odometry as odometry  # noqa: E402
+from acn.measurements.importer import ImportConfig, import_log  # noqa: E402
+from acn.measurements.data import Measurements, fill_derived, load_measurements  # noqa: E402
+from acn.sim.state import GROUPS, SLICES  # noqa: E402
 
 NO_MOCAP = list(GROUPS["base_pos"] + GROUPS["base_linvel"])
 
@@ -70,7 +70,7 @@ def main() -> None:
     if args.raw:
         odometry.smooth_velocity = lambda legs, change, dt, spread=None: legs.copy()
     from acn.datasets.record import record
-    from acn.toolkit.collector import CollectConfig
+    from acn.sim.collector import CollectConfig
 
     root = Path(tempfile.mkdtemp())
     for source in ("mujoco", "pybullet"):

@@ -27,15 +27,15 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 import numpy as np  # noqa: E402
 from stable_baselines3.common.callbacks import BaseCallback  # noqa: E402
 
-from acn.models.ppo import PPOConfig, make_model, make_vec_env  # noqa: E402
+from acn.rl.ppo import PPOConfig, make_model, make_vec_env  # noqa: E402
 
 
 def raw_rate(args: tuple[int, float]) -> float:
     """Control steps/s of one PyBullet backend replaying the trot (one process)."""
     steps, start_at = args
-    from acn.toolkit.backends import make_backend
-    from acn.toolkit.collector import CollectConfig, initial_state
-    from acn.toolkit.policies import Trot
+    from acn.sim.backends import make_backend
+    from acn.sim.collector import CollectConfig, initial_state
+    from acn.sim.policies import Trot
 
     sim = make_backend("pybullet", PPOConfig().sim())
     s = sim.reset(initial_state(CollectConfig(), 0))

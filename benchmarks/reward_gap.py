@@ -1,7 +1,7 @@
 """Where the PyBullet -> MuJoCo reward gap comes from, and what the same-state oracle closes of it.
 
 On held-out starts of a paired dataset (``make demo``'s ``out/trot_pb_mj`` by default), in
-closed loop as ``acn-fit`` evaluates (``acn.models.evaluate``): MuJoCo uncorrected, the
+closed loop as ``acn-fit`` evaluates (``acn.corrector.evaluate``): MuJoCo uncorrected, the
 same-state oracle under two channel weightings (1 / the dataset's MuJoCo state spread, as
 ``acn-fit``; 1 / ``evaluate.TYPICAL_SPREAD``), and the oracle that also matches the source's
 applied torque from the same state (``SameStateOracle(effort_weights=1 / N m)``). Per run,
@@ -18,13 +18,13 @@ import argparse
 
 import numpy as np
 
-from acn.datasets.measurements import load_measurements
+from acn.measurements.data import load_measurements
 from acn.datasets.reader import read_info
 from acn.datasets.record import config_from_metadata
-from acn.models.acn import OUTPUT_CHANNELS
-from acn.models.evaluate import held_out, output_spread, run_episodes, summarise, typical_spread
-from acn.models.oracle import SameStateOracle
-from acn.toolkit.reward import REWARD_WEIGHTS, reward_terms
+from acn.corrector.acn import OUTPUT_CHANNELS
+from acn.corrector.evaluate import held_out, output_spread, run_episodes, summarise, typical_spread
+from acn.corrector.oracle import SameStateOracle
+from acn.sim.reward import REWARD_WEIGHTS, reward_terms
 
 TERMS = ("forward_speed", "torque", "tilt", "joint_speed")
 

@@ -34,10 +34,10 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
 from acn.datasets.record import record  # noqa: E402
 from acn.datasets.writer import DatasetWriter  # noqa: E402
-from acn.toolkit import parallel  # noqa: E402
-from acn.toolkit.backends import SimConfig  # noqa: E402
-from acn.toolkit.collector import CollectConfig, collect_episodes  # noqa: E402
-from acn.toolkit.resim import Resimulator  # noqa: E402
+from acn.sim import parallel  # noqa: E402
+from acn.sim.backends import SimConfig  # noqa: E402
+from acn.sim.collector import CollectConfig, collect_episodes  # noqa: E402
+from acn.sim.resim import Resimulator  # noqa: E402
 
 PAGE = os.sysconf("SC_PAGE_SIZE")
 

@@ -36,9 +36,9 @@ import rerun as rr  # noqa: E402
 from acn.datasets.reader import load_frames  # noqa: E402
 from acn.datasets.record import collection_metadata  # noqa: E402
 from acn.datasets.writer import DatasetWriter  # noqa: E402
-from acn.toolkit.collector import CollectConfig, collect_episodes  # noqa: E402
-from acn.toolkit.state import FOOT_NAMES, GROUPS, JOINT_NAMES, SLICES  # noqa: E402
-from acn.toolkit.kinematics import RobotKinematics  # noqa: E402
+from acn.sim.collector import CollectConfig, collect_episodes  # noqa: E402
+from acn.sim.state import FOOT_NAMES, GROUPS, JOINT_NAMES, SLICES  # noqa: E402
+from acn.sim.kinematics import RobotKinematics  # noqa: E402
 from acn.viz.log import log_episode, log_meshes  # noqa: E402
 from acn.viz.meshes import link_meshes  # noqa: E402
 from acn.viz.trajectories import recorded_episode  # noqa: E402

@@ -23,7 +23,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 from hypothesis import settings  # noqa: E402
 from hypothesis.configuration import set_hypothesis_home_dir  # noqa: E402
 
-from acn.toolkit.collector import CollectConfig, collect_episodes  # noqa: E402
+from acn.sim.collector import CollectConfig, collect_episodes  # noqa: E402
 
 _HYPOTHESIS_HOME = tempfile.mkdtemp(prefix="acn-hypothesis-")  # no .hypothesis/ in the tree, none left in /tmp
 atexit.register(shutil.rmtree, _HYPOTHESIS_HOME, ignore_errors=True)

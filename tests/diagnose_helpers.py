@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 from robot_log import LogSpec, write_log
 
-from acn.datasets.measurements import load_measurements
-from acn.models.diagnose import DiagnoseConfig
-from acn.toolkit.collector import CollectConfig
-from acn.toolkit.effects import AppliedEffect, get_effect
+from acn.measurements.data import load_measurements
+from acn.diagnosis import DiagnoseConfig
+from acn.sim.collector import CollectConfig
+from acn.sim.effects import AppliedEffect, get_effect
 
 # Small and quick: a few hundred rows, a few hundred re-simulated per stage.
 FAST = DiagnoseConfig(horizons=(1, 5), compare_rows=300, rollout_starts=30, rank_rows=100, judge_rows=300,
@@ -62,7 +62,7 @@ NOISY_LOGS = {"nominal": LogSpec(noise=1.0, seed=1),
 def noisy_log(root: Path, name: str) -> Path:
     """The ``NOISY_LOGS`` log ``name`` written under ``root`` and imported with acn-import (50 Hz, kp 60,
     kd 1.5, torque limit 33.5); a dataset already imported there is reused."""
-    from acn.datasets.importer import ImportConfig, import_log
+    from acn.measurements.importer import ImportConfig, import_log
 
     out = Path(root) / name
     if not (out / "meta" / "info.json").is_file():

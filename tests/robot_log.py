@@ -16,8 +16,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pacsv
 
-from acn.toolkit.robot import STANCE, URDF_JOINT, urdf_path
-from acn.toolkit.state import FOOT_NAMES, GROUPS, JOINT_NAMES, SLICES, STATE_NAMES
+from acn.sim.robot import STANCE, URDF_JOINT, urdf_path
+from acn.sim.state import FOOT_NAMES, GROUPS, JOINT_NAMES, SLICES, STATE_NAMES
 
 G = 9.81
 GLITCH = 30.0  # a glitch's size, multiple of NOISE

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from acn.toolkit import frames
-from acn.toolkit.backends import BACKENDS, SimConfig, SimulationDiverged, default_state, make_backend
-from acn.toolkit.collector import CollectConfig, initial_state
-from acn.toolkit.policies import Trot, make_policy, policy_action
-from acn.toolkit.robot import ModelParams
-from acn.toolkit.state import DYNAMIC_GROUPS, SLICES, STATE_DIM
+from acn.sim import frames
+from acn.sim.backends import BACKENDS, SimConfig, SimulationDiverged, default_state, make_backend
+from acn.sim.collector import CollectConfig, initial_state
+from acn.sim.policies import Trot, make_policy, policy_action
+from acn.sim.robot import ModelParams
+from acn.sim.state import DYNAMIC_GROUPS, SLICES, STATE_DIM
 
 
 def random_state(seed: int) -> np.ndarray:
@@ -40,9 +40,9 @@ def test_set_state_then_get_state_is_identity(name):
 def test_the_trunk_read_in_another_frame(name):
     """With ``base_frame_offset`` the state reads the trunk in a frame off the trunk link's (a
     motion-capture body, a tilted IMU): the same simulator state as the formulas of
-    acn.toolkit.frames give, and set_state inverts it exactly; the physics is unchanged."""
-    from acn.toolkit.robot import ModelParams
-    from acn.toolkit.rotations import rpy_to_matrices
+    acn.sim.frames give, and set_state inverts it exactly; the physics is unchanged."""
+    from acn.sim.robot import ModelParams
+    from acn.sim.rotations import rpy_to_matrices
 
     frame = np.array([0.03, -0.02, 0.05, 0.02, -0.04, 0.03])
     d, r_o = frame[:3], rpy_to_matrices(frame[None, 3:])[0]
@@ -117,7 +117,7 @@ def test_simulators_agree_on_the_first_control_step():
 @pytest.mark.parametrize("name", BACKENDS)
 def test_trot_walks_forward_for_ten_seconds(name):
     """>= 0.3 m/s along the trunk's initial heading for 10 s, without falling."""
-    from acn.toolkit.collector import fallen
+    from acn.sim.collector import fallen
 
     policy = Trot()
     with make_backend(name) as sim:
@@ -261,7 +261,7 @@ def test_an_instantaneous_accelerometer_reads_what_mujocos_sensor_reads():
     start (dropped 3 cm), MuJoCo stepped directly with the sensor added to our model."""
     import mujoco
 
-    from acn.toolkit.backends.mujoco_backend import TRUNK_LINK, build_spec
+    from acn.sim.backends.mujoco_backend import TRUNK_LINK, build_spec
 
     s0 = default_state()
     s0[SLICES["base_pos"]][2] += 0.03

@@ -1,4 +1,4 @@
-"""Consistency checks of robot logs (acn.datasets.checks): units, signs, frames, conventions.
+"""Consistency checks of robot logs (acn.measurements.checks): units, signs, frames, conventions.
 
 Logs from ``tests/robot_log.py`` (MuJoCo stepped directly, sensor noise), corrupted the way
 logs from other code are: each corruption must be named, a consistent log must give nothing.
@@ -16,11 +16,11 @@ import pytest
 from robot_log import LogSpec, simulate, welded_payload
 from test_import import CONTROL
 
-from acn.datasets.checks import LAG_Z, check, lag
-from acn.datasets.measurements import load_measurements
-from acn.toolkit.robot import STANCE
-from acn.toolkit.rotations import rpy_to_matrices, rpy_to_quat
-from acn.toolkit.state import GROUPS, JOINT_NAMES, STATE_NAMES
+from acn.measurements.checks import LAG_Z, check, lag
+from acn.measurements.data import load_measurements
+from acn.sim.robot import STANCE
+from acn.sim.rotations import rpy_to_matrices, rpy_to_quat
+from acn.sim.state import GROUPS, JOINT_NAMES, STATE_NAMES
 
 
 @pytest.fixture(scope="module")
@@ -249,7 +249,7 @@ def test_timestamps_in_ms_and_bad_quaternions_are_refused_in_one_line(tmp_path, 
 def test_a_physical_effect_the_checks_see_is_left_to_the_diagnosis():
     """Encoder zeros off by 2-7 degrees put stance feet off the ground: the finding says it may be
     the catalogue's encoder_offset, and a diagnosis that names it does not call the data broken."""
-    from acn.models.diagnose.pipeline import findings_note
+    from acn.diagnosis.pipeline import findings_note
 
     offsets = np.array([0.05, -0.08, 0.1, -0.04, 0.06, -0.12, 0.03, 0.09, -0.07, -0.1, 0.04, 0.08])
     found = check(_episodes(simulate(LogSpec(seconds=4.0, episodes=2, seed=9, noise=1.0, encoder_offset=offsets))),

@@ -18,8 +18,8 @@ from conftest import load
 from acn.datasets import schema
 from acn.datasets.record import record
 from acn.datasets.writer import DatasetWriter, episode_columns
-from acn.toolkit.collector import CollectConfig
-from acn.toolkit.state import ACTION_NAMES, STATE_NAMES
+from acn.sim.collector import CollectConfig
+from acn.sim.state import ACTION_NAMES, STATE_NAMES
 
 
 def test_round_trip_gives_the_exact_values_the_collector_produced(small_dataset, small_episodes):
@@ -137,7 +137,7 @@ def test_source_alone_records_measurements(tmp_path):
 
 def test_falls_end_the_episode_and_are_marked(tmp_path):
     """A weak PD cannot hold the A1 up: it falls, the episode is kept and marked."""
-    from acn.toolkit.backends import SimConfig
+    from acn.sim.backends import SimConfig
 
     cfg = CollectConfig(target="mujoco", policy="stand", episodes=1, seconds=3.0, sim=SimConfig(kp=2.0, kd=0.1))
     path = record(cfg, tmp_path / "falls")
@@ -151,7 +151,7 @@ def test_falls_end_the_episode_and_are_marked(tmp_path):
 
 
 def test_a_blow_up_cuts_the_episode_and_keeps_the_dataset_valid(tmp_path):
-    from acn.toolkit.backends import SimConfig
+    from acn.sim.backends import SimConfig
 
     cfg = CollectConfig(target="mujoco", policy="trot", episodes=2, seconds=0.5,
                         sim=SimConfig(physics_dt=0.005, substeps=4, kp=300.0, kd=0.0, torque_limit=1e7))
@@ -166,7 +166,7 @@ def test_a_blow_up_cuts_the_episode_and_keeps_the_dataset_valid(tmp_path):
 
 def test_nothing_is_written_when_every_episode_blows_up_at_once(tmp_path):
     from acn.errors import UserError
-    from acn.toolkit.backends import SimConfig
+    from acn.sim.backends import SimConfig
 
     cfg = CollectConfig(target="mujoco", policy="trot", episodes=1, seconds=0.5,
                         sim=SimConfig(physics_dt=0.005, substeps=4, kp=1500.0, kd=0.0, torque_limit=1e7))

@@ -19,15 +19,15 @@ import pytest
 from diagnose_helpers import FAST, close, measured, noisy_log
 from robot_log import LogSpec, write_log
 
-from acn.datasets.measurements import load_measurements
+from acn.measurements.data import load_measurements
 from acn.datasets.record import record
 from acn.errors import UserError
-from acn.models.diagnose import DiagnoseConfig, diagnose
-from acn.models.diagnose.problem import prepare
-from acn.models.diagnose.report import terminal, to_json
-from acn.toolkit.collector import CollectConfig
-from acn.toolkit.effects import AppliedEffect, Model, get_effect
-from acn.toolkit.state import JOINT_NAMES, SLICES, STATE_NAMES
+from acn.diagnosis import DiagnoseConfig, diagnose
+from acn.diagnosis.problem import prepare
+from acn.diagnosis.report import terminal, to_json
+from acn.sim.collector import CollectConfig
+from acn.sim.effects import AppliedEffect, Model, get_effect
+from acn.sim.state import JOINT_NAMES, SLICES, STATE_NAMES
 
 # effect -> (hidden params, the candidates it is ranked against: the effects whose error looks most like its own).
 # A joint effect, whose granularity is chosen among all four, and a reading-only one (a motion-capture body, or
@@ -85,7 +85,7 @@ def test_a_chain_replaces_the_kept_one_where_it_predicts_better_at_more_horizons
     the noise case is a chain that wins the one step alone. A chain of fewer effects
     replaces the kept one where it predicts as well, and ``add.revisit``'s refitted chain
     replaces the greedy one where it predicts no horizon worse."""
-    from acn.models.diagnose.add import horizon_votes, predicts_as_well, predicts_better, predicts_no_worse
+    from acn.diagnosis.add import horizon_votes, predicts_as_well, predicts_better, predicts_no_worse
 
     def v(one, z, h5, h25):
         return {"one_step_removed": one, "z": z, "longest_horizon_removed": h25, "horizons_removed": {5: h5, 25: h25}}
@@ -158,7 +158,7 @@ def test_a_torque_controlled_200_hz_noisy_log_finds_the_damping(tmp_path):
     remove 55-61 % of the error (they reshape how the start state's noise propagates) against
     damping's 38 %, and --auto would add the offsets first. Ranked here against those three (the
     whole catalogue on a longer log: benchmarks/diagnose_scenarios.py)."""
-    from acn.datasets.importer import ImportConfig, import_log
+    from acn.measurements.importer import ImportConfig, import_log
 
     damping = lambda spec: [j.damping.__setitem__(0, 0.5) for j in spec.joints if j.name != "root"]  # noqa: E731
     write_log(tmp_path / "log.csv", LogSpec(noise=1.0, seed=103, control_hz=200, torque_control=True,
@@ -181,7 +181,7 @@ def test_an_mpc_style_controller_that_sends_stance_legs_pure_torques_has_its_lat
     into position targets for the imported gains instead, the latency would read 10.0 ms with
     armature ranked first, and damping 0.5 would read 0.16. Ranked here against the effects that
     stand in for a latency (the whole catalogue: benchmarks/diagnose_scenarios.py)."""
-    from acn.datasets.importer import ImportConfig, import_log
+    from acn.measurements.importer import ImportConfig, import_log
 
     write_log(tmp_path / "log.csv", LogSpec(noise=1.0, seed=31, stance_torque=True, latency_steps=15))
     path, report = import_log(tmp_path / "log.csv", tmp_path / "robot", ImportConfig(50, 60.0, 1.5, 33.5))
@@ -202,9 +202,9 @@ def test_a_motor_whose_damping_gain_differs_acts_on_the_velocity_target_too(tmp_
     feedforward (kd dq_des + tau_ff), the scale would act on -qd alone and make that model WORSE
     than the nominal one (median over rows of the largest joint-velocity error: 0.0011 rad/s with
     the velocity target, 0.39 nominal, 0.67 folded), and a diagnosis of such a log say `none`."""
-    from acn.datasets.importer import ImportConfig, import_log
-    from acn.toolkit.resim import Resimulator
-    from acn.toolkit.robot import ModelParams
+    from acn.measurements.importer import ImportConfig, import_log
+    from acn.sim.resim import Resimulator
+    from acn.sim.robot import ModelParams
 
     write_log(tmp_path / "log.csv", LogSpec(seconds=2.0, episodes=1, seed=5, feedforward=True, gains=(1.0, 0.6)))
     m = load_measurements(import_log(tmp_path / "log.csv", tmp_path / "ds", ImportConfig(50, 60.0, 1.5, 33.5))[0])
@@ -223,7 +223,7 @@ def test_a_corrector_moves_a_hybrid_commands_target_and_keeps_its_gains():
     """A corrector of position targets acts on a hybrid command through the target that drives
     its PD (q_des + (kd dq_des + tau_ff) / kp): q_des moves by the correction, kp, kd, the
     velocity target and the feedforward stay."""
-    from acn.models.diagnose.problem import corrected
+    from acn.diagnosis.problem import corrected
 
     class Shift:  # a corrector that adds 0.1 rad to every target
         def correct(self, states, actions):
@@ -266,8 +266,8 @@ def test_derived_joint_velocities_start_from_the_models_step(tmp_path):
     (armature 0.02), the one-step error of the angles is then less than half of that from central
     differences, which hold the very angle the row is compared with (measured: 0.33x on 4 x 10 s).
     An episode's first row has no step before it and keeps the derived velocities."""
-    from acn.datasets.importer import ImportConfig, import_log
-    from acn.toolkit.resim import Resimulator
+    from acn.measurements.importer import ImportConfig, import_log
+    from acn.sim.resim import Resimulator
 
     def armature(spec):
         for j in spec.joints:
@@ -297,7 +297,7 @@ def test_instruments_leave_the_armature_to_least_squares_where_rows_start_from_t
     """Where rows start from the model's step (derived joint velocities), the instrumental refit
     solves neither the armature nor, beside a fitted armature, a parameter without joints (a lag);
     elsewhere it solves them as the cases below say."""
-    from acn.models.diagnose.fitting import FreeParameters, Together, _instrumented
+    from acn.diagnosis.fitting import FreeParameters, Together, _instrumented
 
     def solved(step: bool, *names: str) -> list[bool]:
         free = Together([FreeParameters(get_effect(n), "shared", {}) for n in names])
@@ -314,7 +314,7 @@ def test_instruments_leave_the_armature_to_least_squares_where_rows_start_from_t
 def test_the_jacobian_is_taken_by_central_differences_inside_the_bounds():
     """``central_jacobian``: (r(x + h) - r(x - h)) / 2h, one-sided where a bound cuts the step;
     every point it asks for lies within the bounds, all of them in one batch."""
-    from acn.models.diagnose.fitting import FD_STEP, central_jacobian
+    from acn.diagnosis.fitting import FD_STEP, central_jacobian
 
     asked = []
 
@@ -484,9 +484,9 @@ def test_measurements_at_another_rate_or_without_joints_are_one_line_errors(tmp_
 
 def test_parameters_the_data_cannot_pin_down_are_flagged():
     """A standard error above half the largest realistic magnitude: not identified (0.15 rad for offsets)."""
-    from acn.models.diagnose.fitting import EffectFit
-    from acn.models.diagnose.rank import unidentified
-    from acn.toolkit.state import JOINT_NAMES
+    from acn.diagnosis.fitting import EffectFit
+    from acn.diagnosis.rank import unidentified
+    from acn.sim.state import JOINT_NAMES
 
     effect = get_effect("encoder_offset")
     stderr = np.full(12, 0.004)
@@ -505,7 +505,7 @@ def test_standard_errors_count_rows_that_share_their_errors():
     from scipy.signal import lfilter
     from scipy.special import stdtrit
 
-    from acn.models.diagnose.fitting import _stderr
+    from acn.diagnosis.fitting import _stderr
 
     rng = np.random.default_rng(0)
     rows, channels = 1000, 3
@@ -531,8 +531,8 @@ def test_standard_errors_count_rows_that_share_their_errors():
 def ranked_candidate(rng: np.random.Generator, name: str, value: float, error: float, longer: float | None):
     """A significant candidate whose every parameter is ``value`` and whose held-out residuals
     (600 rows x 4 channels) have spread ``error``; ``longer``: its longest-horizon gain."""
-    from acn.models.diagnose.fitting import EffectFit
-    from acn.models.diagnose.rank import Candidate, Judgement
+    from acn.diagnosis.fitting import EffectFit
+    from acn.diagnosis.rank import Candidate, Judgement
 
     effect = get_effect(name)
     values = {p.name: np.asarray(value) for p in effect.parameters}
@@ -548,7 +548,7 @@ def test_candidates_one_step_cannot_tell_apart_are_ordered_by_the_longer_predict
     5 % more goes first; a clear one-step winner, a richer effect no better at one step or a small
     longer gain do not move. A richer effect behind only by its price is tied too, unless it
     reproduces the best."""
-    from acn.models.diagnose.rank import prefer_longer, tied_with_best
+    from acn.diagnosis.rank import prefer_longer, tied_with_best
 
     rng = np.random.default_rng(0)
     candidate = lambda *args: ranked_candidate(rng, *args)  # noqa: E731
@@ -585,9 +585,9 @@ def test_an_added_effect_names_the_candidates_one_step_could_not_tell_it_from():
     them under the added effect (terminal, HTML and JSON ``one_step_ties``) with their own fitted
     values and both horizons' shares, the added one first. An added effect's parameters are printed
     apart from those of effects refitted with it."""
-    from acn.models.diagnose.add import Added
-    from acn.models.diagnose.rank import ties_of, tied_either_way, tied_with
-    from acn.models.diagnose.report import _notes, _params_text, _ties_json
+    from acn.diagnosis.add import Added
+    from acn.diagnosis.rank import ties_of, tied_either_way, tied_with
+    from acn.diagnosis.report import _notes, _params_text, _ties_json
 
     rng = np.random.default_rng(3)
     payload = ranked_candidate(rng, "payload", 0.0, 0.500, 0.71)
@@ -625,7 +625,7 @@ def test_a_richer_effect_that_wins_only_the_one_step_gives_way_to_a_simpler_one(
     """Both PD gains beat joint damping at one step by more than the parsimony margin (as with
     twice the typical sensor noise); damping goes first only if it predicts the longest horizon
     at least as well: extra parameters that buy one-step accuracy alone fit the noise."""
-    from acn.models.diagnose.rank import LongestHorizon, prefer_simpler
+    from acn.diagnosis.rank import LongestHorizon, prefer_simpler
 
     rng = np.random.default_rng(1)
     gains = ranked_candidate(rng, "pd_gains", 1.2, 0.40, 0.35)
@@ -644,7 +644,7 @@ def test_a_richer_effect_close_at_one_step_keeps_its_place_where_it_predicts_cle
     significantly better (z 4) and lowers the 25-step error by 6 % of it more. Close at one step
     alone does not hand the place to the simpler effect; a longer gain within 5 % of the simpler
     one's does."""
-    from acn.models.diagnose.rank import LongestHorizon, paired_z, prefer_simpler
+    from acn.diagnosis.rank import LongestHorizon, paired_z, prefer_simpler
 
     rng = np.random.default_rng(2)
     payload = ranked_candidate(rng, "payload", 0.0, 0.400, 0.75)
@@ -667,8 +667,8 @@ def test_what_a_too_small_effect_removes_counts_as_noise():
     height decides how deep the trunk starts in the floor) raises the noise floor by what it removes,
     beyond what the best plausible candidate removes; a fit at a bound or one the measurements
     contradict does not (it stands in for another effect: springs fitted as damping)."""
-    from acn.models.diagnose.pipeline import noise_fitted
-    from acn.models.diagnose.rank import implausible, too_small
+    from acn.diagnosis.pipeline import noise_fitted
+    from acn.diagnosis.rank import implausible, too_small
 
     rng = np.random.default_rng(2)
     residual = rng.normal(0.0, 1.0, (600, 4))
@@ -703,11 +703,11 @@ def test_a_small_effect_added_under_sensor_noise_is_named_in_the_verdict():
     """--auto added an effect to a model whose one-step error is mostly noise (< 15 % above the
     floor): the verdict names it (not "none" beside the added effect); with more
     structure left the same addition is "unexplained"; a set-aside best candidate says why."""
-    from acn.models.diagnose.add import Added
-    from acn.models.diagnose.compare import Comparison
-    from acn.models.diagnose.fitting import EffectFit
-    from acn.models.diagnose.pipeline import verdict
-    from acn.models.diagnose.rank import Candidate, Judgement
+    from acn.diagnosis.add import Added
+    from acn.diagnosis.compare import Comparison
+    from acn.diagnosis.fitting import EffectFit
+    from acn.diagnosis.pipeline import verdict
+    from acn.diagnosis.rank import Candidate, Judgement
 
     rng = np.random.default_rng(0)
 
@@ -751,9 +751,9 @@ def test_an_effect_that_acts_on_few_steps_is_significant_by_its_longest_horizon_
     removes most of that error, if a quarter, is significant (a torque limit reached in a few per
     cent of the steps); the verdict says so. Not when another plausible candidate is significant
     at one step (unless it removes under 2 % of the long error), nor below 25 %."""
-    from acn.models.diagnose.fitting import EffectFit
-    from acn.models.diagnose.pipeline import verdict
-    from acn.models.diagnose.rank import Candidate, Judgement, uneven
+    from acn.diagnosis.fitting import EffectFit
+    from acn.diagnosis.pipeline import verdict
+    from acn.diagnosis.rank import Candidate, Judgement, uneven
 
     residual = np.zeros((10, 4))
 
@@ -787,7 +787,7 @@ def test_an_effect_that_acts_on_few_steps_is_significant_by_its_longest_horizon_
     uneven(horizon, out)
     assert out[0].judgement.significant and out[0].judgement.by_longest and out[0].longer_gain == 0.48
     assert horizon.asked == [id(out[0].fit.model)]  # damping removes too little to be checked
-    from acn.models.diagnose.compare import Comparison
+    from acn.diagnosis.compare import Comparison
     before = Comparison(Model("mujoco"), {}, {1: np.full(4, 1.0), 25: np.full(4, 0.5)}, np.arange(10), residual + 1,
                         np.zeros((10, 43)), 0)
     v, reason, named = verdict(before, 1.0, 0.95, out, [], automatic=False)  # the limit explains 82 %
@@ -820,12 +820,12 @@ def test_an_effect_that_acts_on_few_steps_is_significant_by_its_longest_horizon_
     uneven(horizon, [strength, payload, weak])
     assert horizon.asked == [id(strength.fit.model), id(payload.fit.model)]
     assert payload.judgement.by_longest and not strength.judgement.significant
-    from acn.models.diagnose.pipeline import evidence
+    from acn.diagnosis.pipeline import evidence
     assert evidence(payload) == ("it removes 54% of the longest-horizon open-loop error; at one step only 1.8% "
                                  "(8.1 standard errors): a small effect that adds up")
     # added so, the report says why under the effect
-    from acn.models.diagnose.add import Added
-    from acn.models.diagnose.report import _notes
+    from acn.diagnosis.add import Added
+    from acn.diagnosis.report import _notes
     errors = {1: np.full(4, 1.0), 25: np.full(4, 1.0)}
     before = Comparison(Model("mujoco"), {}, errors, np.arange(10), residual + 1, np.zeros((10, 43)), 0)
     after = replace(before, channel_error={1: errors[1], 25: np.full(4, np.sqrt(0.46))})
@@ -837,8 +837,8 @@ def test_an_effect_that_acts_on_few_steps_is_significant_by_its_longest_horizon_
 
 def test_auto_holds_an_effect_s_final_fit_to_the_margins_it_asks_of_the_candidate():
     """``too_little``: what ``--auto`` asks of the best candidate, and again of its final fit."""
-    from acn.models.diagnose.add import too_little
-    from acn.models.diagnose.rank import Judgement
+    from acn.diagnosis.add import too_little
+    from acn.diagnosis.rank import Judgement
 
     def judged(after: float) -> Judgement:
         return Judgement(1.0, after, 1.0 - after, 5.0, True, np.zeros((1, 1)))

@@ -8,15 +8,15 @@ import numpy as np
 import pytest
 
 from acn.errors import UserError
-from acn.toolkit.actuation import Actuation
-from acn.toolkit.backends import SimConfig, make_backend
-from acn.toolkit.collector import CollectConfig, initial_state
-from acn.toolkit.effects import CATALOGUE, EFFECT_NAMES, Model, describe_catalogue, get_effect
-from acn.toolkit.hidden import parse_hidden
-from acn.toolkit.policies import Trot
-from acn.toolkit.resim import Resimulator
-from acn.toolkit.robot import ModelParams
-from acn.toolkit.state import SLICES
+from acn.sim.actuation import Actuation
+from acn.sim.backends import SimConfig, make_backend
+from acn.sim.collector import CollectConfig, initial_state
+from acn.sim.effects import CATALOGUE, EFFECT_NAMES, Model, describe_catalogue, get_effect
+from acn.sim.hidden import parse_hidden
+from acn.sim.policies import Trot
+from acn.sim.resim import Resimulator
+from acn.sim.robot import ModelParams
+from acn.sim.state import SLICES
 
 CONTRACT = {
     "joint_damping": ["value"], "joint_friction": ["value"], "armature": ["value"], "actuator_latency": ["seconds"],
@@ -218,9 +218,9 @@ def test_both_backends_carry_the_same_payload():
 def test_soft_ground_sinks_the_robot_alike_in_both_simulators():
     """ground_softness: MuJoCo's time constant and PyBullet's foot stiffness (``soft_contact``)
     let the standing robot sink as deep (MuJoCo 1.3 mm at the nominal 0.02 s, as its square)."""
-    from acn.toolkit.backends.base import default_state
-    from acn.toolkit.kinematics import FOOT_RADIUS, RobotKinematics
-    from acn.toolkit.robot import STANCE
+    from acn.sim.backends.base import default_state
+    from acn.sim.kinematics import FOOT_RADIUS, RobotKinematics
+    from acn.sim.robot import STANCE
 
     def sink(backend: str, timeconst: float) -> float:
         with make_backend(backend, SimConfig(params=ModelParams(ground_timeconst=timeconst))) as sim:
@@ -293,8 +293,8 @@ def test_random_hidden_effects_are_realistic():
 def test_the_stance_feet_locate_the_measured_frame():
     """frames.frame_from_stance: the feet on the ground put a tilted, shifted frame about where
     it is (the first guess of base_frame_offset's fit); yaw, which flat ground cannot see, stays 0."""
-    from acn.toolkit import frames
-    from acn.toolkit.policies import make_policy
+    from acn.sim import frames
+    from acn.sim.policies import make_policy
 
     frame = np.array([0.03, -0.02, 0.04, 0.03, -0.04, 0.0])
     policy, states = make_policy("excite"), []
@@ -371,7 +371,7 @@ def test_motor_strength_and_joint_damping_together_are_read_as_the_pd_gains():
     hidden comes out so); it re-simulates to the same states. The report's reading of a final model."""
     from types import SimpleNamespace
 
-    from acn.models.diagnose.report import _together, _together_text
+    from acn.diagnosis.report import _together, _together_text
 
     kd = SimConfig().kd
     said = get_effect("pd_gains").together({"motor_strength": {"scale": 0.66}, "joint_damping": {"value": 0.6}}, kd)

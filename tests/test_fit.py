@@ -15,9 +15,9 @@ import torch
 from acn.cli import fit_main
 from acn.datasets.record import record
 from acn.errors import UserError
-from acn.models import Corrector
-from acn.models.fit import FitConfig, fit, save
-from acn.toolkit.collector import CollectConfig
+from acn.corrector import Corrector
+from acn.corrector.fit import FitConfig, fit, save
+from acn.sim.collector import CollectConfig
 
 # This module runs on one test process (`make test`'s -n 2): the paired data and the fitted correctors are made once.
 pytestmark = pytest.mark.xdist_group("fit")
@@ -79,10 +79,10 @@ def test_calibration_shrinks_a_harmful_corrector(inverse, paired):
     import copy
 
     from acn.datasets.reader import load_paired
-    from acn.models.evaluate import typical_spread
-    from acn.models.fit import calibrate, same_state_rows
-    from acn.models.labels import SolveConfig
-    from acn.toolkit.resim import Resimulator
+    from acn.corrector.evaluate import typical_spread
+    from acn.corrector.fit import calibrate, same_state_rows
+    from acn.corrector.labels import SolveConfig
+    from acn.sim.resim import Resimulator
 
     model = copy.deepcopy(inverse[0])
     model.delta_scale.mul_(-3.0)
@@ -120,7 +120,7 @@ def test_inverse_reports_rounds_and_oracles(inverse):
 
 def test_runs_are_compared_episode_by_episode():
     """versus: paired per-episode differences; a change counts beyond two standard errors."""
-    from acn.models.evaluate import versus
+    from acn.corrector.evaluate import versus
 
     ref = {"reward_gap_per_episode": [10.0, 12.0, 11.0, 13.0], "divergence_per_episode": [1.0, 1.1, 0.9, 1.0],
            "ends": ["time_limit"] * 4}
@@ -136,7 +136,7 @@ def test_runs_are_compared_episode_by_episode():
 
 def test_acn_loss_gradient_is_autograds():
     """acn_loss's written-out gradient (both outputs, every input) equals autograd's through the formula."""
-    from acn.models.acn import acn_loss
+    from acn.corrector.acn import acn_loss
 
     gen = torch.Generator().manual_seed(0)
     d, j, r = (torch.randn(*shape, dtype=torch.float64, generator=gen) for shape in ((6, 12), (6, 33, 12), (6, 33)))
@@ -154,9 +154,9 @@ def test_written_out_backprop_gives_autograds_gradients(variant, layers):
     buffer) gives autograd's loss and gradient for every parameter, in float32."""
     import copy
 
-    from acn.models.acn import acn_loss
-    from acn.models.backprop import FlatMLPs
-    from acn.models.corrector import default_config
+    from acn.corrector.acn import acn_loss
+    from acn.corrector.backprop import FlatMLPs
+    from acn.corrector.corrector import default_config
 
     torch.manual_seed(0)
     model = Corrector(default_config(variant, 24, layers))
@@ -190,7 +190,7 @@ def test_adam_step_called_directly_gives_torch_adams_weights(monkeypatch):
     torch.optim.Adam(fused=True).step(), to the bit, with the learning rate changed between steps
     (a schedule); where the kernel refuses its arguments (another torch) it goes through step()
     from then on, to the same weights; an optimiser it cannot call directly goes through step()."""
-    from acn.models.backprop import AdamStep
+    from acn.corrector.backprop import AdamStep
 
     gen = torch.Generator().manual_seed(3)
     start = torch.randn(1000, generator=gen)
@@ -230,8 +230,8 @@ def test_adam_step_called_directly_gives_torch_adams_weights(monkeypatch):
 def test_training_leaves_separate_float32_parameters(precision, tmp_path):
     """Training uses one flat (bf16) buffer; afterwards each parameter is its own float32 tensor, the
     state_dict keys are unchanged and the corrector saves and loads."""
-    from acn.models.corrector import default_config
-    from acn.models.fit import Split, train
+    from acn.corrector.corrector import default_config
+    from acn.corrector.fit import Split, train
 
     if precision == "bf16" and not torch.ops.mkldnn._is_mkldnn_bf16_supported():
         pytest.skip("no native bf16")
@@ -254,7 +254,7 @@ def test_save_load_round_trip_gives_identical_corrections(fitted, paired):
     model = Corrector.load(path)
     again = Corrector.load(path)
     rng = np.random.default_rng(0)
-    from acn.toolkit.backends import default_state
+    from acn.sim.backends import default_state
 
     s = default_state()[None] + rng.normal(0, 0.05, (16, 43))
     a = rng.normal(0, 0.3, (16, 12))
@@ -269,7 +269,7 @@ def test_save_load_round_trip_gives_identical_corrections(fitted, paired):
 def test_the_corrector_is_frozen_and_takes_numpy_or_torch(fitted):
     model = Corrector.load(fitted[0])
     assert not model.training and not any(p.requires_grad for p in model.parameters())
-    from acn.toolkit.backends import default_state
+    from acn.sim.backends import default_state
 
     s, a = default_state(), np.full(12, 0.1)
     out = model.correct(s, a)
@@ -309,7 +309,7 @@ def test_corrector_files_are_safetensors_and_json_and_old_configs_load(inverse, 
     config = json.loads((path / "config.json").read_text())
     assert config["variant"] == "inverse" and len(config["input_channels"]) == 33  # dynamic channels only
     loaded = Corrector.load(path)
-    from acn.toolkit.backends import default_state
+    from acn.sim.backends import default_state
 
     s, a = default_state(), np.full(12, 0.1)
     np.testing.assert_allclose(loaded.correct(s, a), model.correct(s, a), rtol=1e-6)
@@ -326,7 +326,7 @@ def test_not_paired_is_refused(tmp_path):
 
 
 def test_datasets_with_different_rates_are_refused(paired, tmp_path):
-    from acn.toolkit.backends import SimConfig
+    from acn.sim.backends import SimConfig
 
     other = record(CollectConfig(target="mujoco", episodes=2, seconds=0.2, sim=SimConfig(substeps=10)),
                    tmp_path / "100hz")
@@ -416,9 +416,9 @@ def test_no_filter_writes_standard_json(paired, tmp_path):
 def test_closed_loop_of_a_model_runs_beside_the_corrector_and_the_oracles(fitted, paired):
     """acn-diagnose --closed-loop: the network's and the physics' answer on the same held-out
     episodes as acn-fit's own evaluation (same initial states: the uncorrected run is identical)."""
-    from acn.datasets.measurements import load_measurements
-    from acn.models.diagnose.transfer import closed_loop_models
-    from acn.toolkit.effects import AppliedEffect, Model, get_effect
+    from acn.measurements.data import load_measurements
+    from acn.diagnosis.transfer import closed_loop_models
+    from acn.sim.effects import AppliedEffect, Model, get_effect
 
     model_dir, metrics = fitted
     data = load_measurements(paired, side="source")
@@ -460,9 +460,9 @@ def test_physics_names_the_pybullet_mujoco_gap_a_stiffer_ground(paired):
     a large share of the one-step error (make demo's data: 0.0036 s, 54 %)."""
     from dataclasses import replace
 
-    from acn.datasets.measurements import load_measurements
-    from acn.models.diagnose import DiagnoseConfig, diagnose
-    from acn.toolkit.effects import Model
+    from acn.measurements.data import load_measurements
+    from acn.diagnosis import DiagnoseConfig, diagnose
+    from acn.sim.effects import Model
 
     cfg = DiagnoseConfig(horizons=(1,), compare_rows=300, rank_rows=150, judge_rows=300, fit_rows=200,
                          rank_iterations=2, finest="shared")
@@ -476,8 +476,8 @@ def test_physics_names_the_pybullet_mujoco_gap_a_stiffer_ground(paired):
 def test_a_corrector_fitted_on_top_of_a_physical_model_learns_what_it_leaves(inverse, paired, tmp_path, capsys):
     """acn-fit --model: the target gets the model's effects for labels, evaluation and rounds; the
     corrector records them and is refused on a target without them."""
-    from acn.models.corrector import load_for_target
-    from acn.toolkit.effects import AppliedEffect, Model, get_effect
+    from acn.corrector.corrector import load_for_target
+    from acn.sim.effects import AppliedEffect, Model, get_effect
 
     softer = Model("mujoco", [AppliedEffect(get_effect("ground_softness"), {"timeconst": 0.004})])
     model, m = fit([paired], FitConfig(**{**FAST, "epochs": 30, "eval_seconds": 2.0, **LABELS}), log=lambda s: None,
@@ -512,9 +512,9 @@ def test_the_written_out_loss_trains_the_weights_autograd_trains(variant, dtype)
     """Twenty Adam steps (full and partial batches) with the loss's gradient written out
     (``_batch_loss_and_grads``) and through autograd (``_batch_loss``) end on the same weights,
     to the bit."""
-    from acn.models.backprop import FlatMLPs
-    from acn.models.corrector import default_config
-    from acn.models.fit import Split, _batch_loss, _batch_loss_and_grads, written_out
+    from acn.corrector.backprop import FlatMLPs
+    from acn.corrector.corrector import default_config
+    from acn.corrector.fit import Split, _batch_loss, _batch_loss_and_grads, written_out
 
     cfg = FitConfig(variant=variant)
     assert written_out(cfg, variant == "inverse") and not written_out(replace(cfg, jacobian_weight=1.0), True)

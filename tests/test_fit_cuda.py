@@ -9,8 +9,8 @@ from dataclasses import replace
 import pytest
 import torch
 
-from acn.models.corrector import Corrector, default_config
-from acn.models.fit import FitConfig, Split, train
+from acn.corrector.corrector import Corrector, default_config
+from acn.corrector.fit import FitConfig, Split, train
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
 

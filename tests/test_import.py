@@ -13,9 +13,9 @@ import pytest
 from conftest import load
 from robot_log import LogSpec, simulate, write_log
 
-from acn.datasets.importer import resolve_columns
-from acn.datasets.measurements import fill_derived, load_measurements
-from acn.toolkit.state import GROUPS, JOINT_NAMES, SLICES, STATE_NAMES
+from acn.measurements.importer import resolve_columns
+from acn.measurements.data import fill_derived, load_measurements
+from acn.sim.state import GROUPS, JOINT_NAMES, SLICES, STATE_NAMES
 
 CONTROL = ["--control-hz", "50", "--kp", "60", "--kd", "1.5", "--torque-limit", "33.5"]
 
@@ -151,8 +151,8 @@ def test_the_draft_map_names_one_orientation(tmp_path):
     """A log with its orientation as ``orientation.w/x/y/z`` and no Euler angles gets the
     quaternion drafted (and no Euler angle, although ``roll`` is there too); a log with the
     schema's Euler angles gets no quaternion drafted."""
-    from acn.datasets.importer import ImportConfig, import_log
-    from acn.toolkit.rotations import rpy_to_quat
+    from acn.measurements.importer import ImportConfig, import_log
+    from acn.sim.rotations import rpy_to_quat
 
     table = simulate(LogSpec(seconds=1.0, episodes=1, seed=5))
     x, y, z, w = rpy_to_quat(np.stack([table["base_roll"], table["base_pitch"], table["base_yaw"]]))
@@ -173,8 +173,8 @@ def test_a_quaternion_array_is_drafted_in_the_order_its_data_show(tmp_path, log_
     first) and no Euler angles gets it drafted in that order, with a note saying the data told it,
     and imports with the draft to the log's own angles; written w last at a heading near 0 the
     data do not tell the order: nothing is drafted and the note asks for it."""
-    from acn.datasets.importer import ImportConfig, import_log
-    from acn.toolkit.rotations import rpy_to_quat
+    from acn.measurements.importer import ImportConfig, import_log
+    from acn.sim.rotations import rpy_to_quat
 
     euler = ("base_roll", "base_pitch", "base_yaw")
     x, y, z, w = rpy_to_quat(np.stack([log_rows[c] for c in euler]))
@@ -231,7 +231,7 @@ def test_a_dataset_with_the_36_wide_hybrid_layout_is_still_read(tmp_path):
     """``action.hybrid`` 36 wide (kp, kd and one feedforward kd dq_des + tau_ff, no velocity target
     of its own), as datasets on users' disks may store it, is read as a velocity target of 0 with
     that feedforward: the same target and the same PD at nominal gains."""
-    from acn.datasets.importer import ImportConfig, import_log
+    from acn.measurements.importer import ImportConfig, import_log
 
     write_log(tmp_path / "log.csv", LogSpec(seconds=1.0, episodes=1, seed=5, feedforward=True))
     path = import_log(tmp_path / "log.csv", tmp_path / "ds", ImportConfig(50, 60.0, 1.5, 33.5))[0]
@@ -514,7 +514,7 @@ def test_array_columns_duplicate_names_and_partial_efforts(tmp_path, log_rows, a
 def test_a_column_of_numbers_with_some_text_is_read_as_numbers_a_column_of_text_is_not():
     """"-" for a lost reading, a header written again: NaN there, the rest numbers; a mode column
     of words stays text (skipped)."""
-    from acn.datasets.importer import _mostly_numbers
+    from acn.measurements.importer import _mostly_numbers
 
     values, text = _mostly_numbers(["0.5"] * 18 + ["-", "1e-3", None])
     assert text.tolist() == [False] * 18 + [True, False, False]

@@ -18,11 +18,11 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from acn.datasets.measurements import load_measurements
+from acn.measurements.data import load_measurements
 from acn.datasets.reader import load_frames, load_paired
 from acn.errors import UserError
-from acn.models.corrector import CONFIG, WEIGHTS, Corrector, default_config
-from acn.toolkit.effects import Model
+from acn.corrector.corrector import CONFIG, WEIGHTS, Corrector, default_config
+from acn.sim.effects import Model
 
 SETTINGS = settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 JSON = st.recursive(st.none() | st.booleans() | st.integers(-5, 10**6) | st.floats(allow_nan=True) | st.text(max_size=6),

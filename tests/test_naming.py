@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from acn.datasets.naming import CHANNELS, arrays_read, channel_of, contact_threshold, foot_force_of, suggest_map, words
+from acn.measurements.naming import CHANNELS, arrays_read, channel_of, contact_threshold, foot_force_of, suggest_map, words
 
 
 @pytest.mark.parametrize("name, channel", [
@@ -115,8 +115,8 @@ def test_a_quaternion_arrays_order_is_read_from_a_trunk_near_level():
     heading: elements 1, 2 small is w first, 0, 1 small is w last; a heading that stays near 0 in
     w-last order reads as a heading near pi in w-first order, so the data do not tell; rows that
     are not unit quaternions, or a trunk tumbling, are not read."""
-    from acn.datasets.naming import quaternion_order
-    from acn.toolkit.rotations import rpy_to_quat
+    from acn.measurements.naming import quaternion_order
+    from acn.sim.rotations import rpy_to_quat
 
     rng = np.random.default_rng(0)
     n = 400

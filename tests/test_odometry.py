@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 from robot_log import LogSpec, write_log
 
-from acn.datasets.importer import ImportConfig, import_log
-from acn.datasets.measurements import fill_derived, load_measurements
-from acn.datasets.odometry import Odometry, standing_sink
-from acn.toolkit import frames
-from acn.toolkit.state import GROUPS, SLICES, STATE_NAMES
+from acn.measurements.importer import ImportConfig, import_log
+from acn.measurements.data import fill_derived, load_measurements
+from acn.measurements.odometry import Odometry, standing_sink
+from acn.sim import frames
+from acn.sim.state import GROUPS, SLICES, STATE_NAMES
 
 NO_MOCAP = tuple(GROUPS["base_pos"] + GROUPS["base_linvel"])
 
@@ -29,7 +29,7 @@ def test_odometry_recovers_the_trunk_from_the_joints_imu_and_contacts(tmp_path):
     ground are taken: 9 cm/s (a swing foot just above the ground moves) against a spread of
     0.42 m/s."""
     from acn.datasets.record import record
-    from acn.toolkit.collector import CollectConfig
+    from acn.sim.collector import CollectConfig
 
     path = record(CollectConfig(source="pybullet", target=None, policy="trot", episodes=1, seconds=3.0, seed=3),
                   tmp_path / "trot")
@@ -113,8 +113,8 @@ def no_mocap_log(tmp_path_factory):
 
 
 def test_a_log_without_motion_capture_is_completed_and_never_compared_on_the_estimates(no_mocap_log):
-    from acn.models.diagnose.problem import DiagnoseConfig, prepare
-    from acn.toolkit.effects import Model
+    from acn.diagnosis.problem import DiagnoseConfig, prepare
+    from acn.sim.effects import Model
 
     blind, derived = fill_derived(load_measurements(no_mocap_log["blind"]))
     assert sorted(derived) == sorted(NO_MOCAP) and not blind.missing
@@ -149,7 +149,7 @@ def test_without_motion_capture_each_model_starts_from_its_own_estimate(tmp_path
     with encoder offsets or another trunk frame get their own estimates too."""
     from dataclasses import replace
 
-    from acn.toolkit.robot import ModelParams
+    from acn.sim.robot import ModelParams
 
     write_log(tmp_path / "log.csv", LogSpec(noise=1.0, seed=104, seconds=6.0, drop=NO_MOCAP, spec_edit=_soft_ground))
     path, _ = import_log(tmp_path / "log.csv", tmp_path / "log", ImportConfig(50, 60.0, 1.5, 33.5))
@@ -175,7 +175,7 @@ def test_without_motion_capture_each_model_starts_from_its_own_estimate(tmp_path
     link = frames.state_in_trunk(framed, frame)
     assert np.allclose(link, blind.state) and not np.allclose(framed[:, z], blind.state[:, z])
     # a measured velocity (a reading in the frame, not an estimate of the link's) is converted as usual
-    from acn.datasets.odometry import EstimatedHeight
+    from acn.measurements.odometry import EstimatedHeight
 
     tilted = np.array([0.0, 0.0, 0.06, 0.05, -0.04, 0.0])
     position_only = EstimatedHeight(blind.height.share, blind.height.sink, tuple(range(3)))
@@ -191,7 +191,7 @@ def test_the_smoother_bridges_slipping_feet_with_the_accelerometer():
     """Per-sample leg estimates with noise and a foot that drags for 5 samples: fused with the
     accelerometer's changes, the outliers are gone; without an accelerometer, a robust smoother
     of the legs alone still halves the error."""
-    from acn.datasets.odometry import smooth_velocity
+    from acn.measurements.odometry import smooth_velocity
 
     rng = np.random.default_rng(0)
     dt, t = 0.02, np.arange(250) * 0.02
@@ -224,8 +224,8 @@ def test_an_accelerometer_read_at_each_instant_is_fused_by_the_trapezoid_rule(tm
     instant (``--imu-acc instant``) estimates the trunk's velocity better than the one that takes
     it for the mean over the step (median 6.4 against 8.4 cm/s, measured; 7.2 without the
     spread)."""
-    from acn.datasets.odometry import velocity_change
-    from acn.toolkit.robot import GRAVITY
+    from acn.measurements.odometry import velocity_change
+    from acn.sim.robot import GRAVITY
 
     dt, t = 0.02, np.arange(100) * 0.02
     rot = np.repeat(np.eye(3)[None], len(t), axis=0)

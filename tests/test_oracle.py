@@ -5,15 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from acn.models.acn import OUTPUT_CHANNELS
-from acn.models.evaluate import closed_loop, same_state_oracle, typical_spread
-from acn.models.labels import SolveConfig, solve
-from acn.models.oracle import OUTPUT_INDEX, SameStateOracle
-from acn.models.sensitivity import control_jacobian
-from acn.toolkit.backends import make_backend
-from acn.toolkit.collector import CollectConfig
-from acn.toolkit.policies import make_policy
-from acn.toolkit.resim import Resimulator
+from acn.corrector.acn import OUTPUT_CHANNELS
+from acn.corrector.evaluate import closed_loop, same_state_oracle, typical_spread
+from acn.corrector.labels import SolveConfig, solve
+from acn.corrector.oracle import OUTPUT_INDEX, SameStateOracle
+from acn.corrector.sensitivity import control_jacobian
+from acn.sim.backends import make_backend
+from acn.sim.collector import CollectConfig
+from acn.sim.policies import make_policy
+from acn.sim.resim import Resimulator
 
 
 @pytest.fixture(scope="module")
@@ -89,7 +89,7 @@ def test_same_state_oracle_one_step_and_for_a_policy(small_config, rows):
 
 
 def test_tracking_oracle_needs_a_source(small_config):
-    from acn.models.oracle import TrackingOracle
+    from acn.corrector.oracle import TrackingOracle
 
     oracle = TrackingOracle("mujoco", small_config.sim, 1.0 / typical_spread())
     with pytest.raises(RuntimeError, match="not bound"):

@@ -18,11 +18,11 @@ from gymnasium.utils.env_checker import check_env
 
 from acn.cli import ppo_main
 from acn.datasets.record import record
-from acn.models.fit import FitConfig, fit, save
-from acn.toolkit.collector import CollectConfig, fallen
-from acn.toolkit.envs import ENV_IDS, A1Env, EnvConfig
-from acn.toolkit.reward import REWARD_WEIGHTS, weighted
-from acn.toolkit.state import SLICES
+from acn.corrector.fit import FitConfig, fit, save
+from acn.sim.collector import CollectConfig, fallen
+from acn.sim.envs import ENV_IDS, A1Env, EnvConfig
+from acn.sim.reward import REWARD_WEIGHTS, weighted
+from acn.sim.state import SLICES
 
 # This module runs on one test process (`make test`'s -n 2): the tiny PPO run and its corrector are made once.
 pytestmark = pytest.mark.xdist_group("ppo")
@@ -102,7 +102,7 @@ def test_reward_time_limit_and_fall_rule():
 
 
 def test_corrector_acts_in_the_environment_it_is_given_to(corrector_dir):
-    from acn.models import Corrector
+    from acn.corrector import Corrector
 
     corrector = Corrector.load(corrector_dir)
     plain, corrected = A1Env("mujoco", seconds=0.5), A1Env("mujoco", seconds=0.5, corrector=corrector)
@@ -129,7 +129,7 @@ def test_tiny_run_trains_applies_a_frozen_corrector_and_writes_the_papers_metric
     assert fin["returns"]["mujoco_corrected"] != fin["returns"]["mujoco"] and len(fin["returns"]["pybullet"]) == 3
     assert m["corrector_frozen"] and all(c["digest"] == c["digest_at_retirement"] for c in m["correctors"])
     assert sha256(corrector_dir / "model.safetensors") == before
-    from acn.models.ppo import file_digest
+    from acn.rl.ppo import file_digest
 
     given = m["correctors"][0]
     assert given["source"].startswith("given") and file_digest(corrector_dir) == given["digest"]
@@ -138,8 +138,8 @@ def test_tiny_run_trains_applies_a_frozen_corrector_and_writes_the_papers_metric
     refits = [c for c in m["correctors"] if c["source"] == "refit"]
     assert len(refits) >= 2 and (out / "corrector" / "model.safetensors").is_file()
     assert file_digest(out / "corrector") == m["correctors"][-1]["digest"]
-    # the same-state oracle bound: an optional field, filled where acn.models.evaluate offers the oracle
-    from acn.models import evaluate
+    # the same-state oracle bound: an optional field, filled where acn.corrector.evaluate offers the oracle
+    from acn.corrector import evaluate
 
     if hasattr(evaluate, "same_state_oracle"):
         o = m["same_state_oracle"]
@@ -160,7 +160,7 @@ def test_tiny_run_trains_applies_a_frozen_corrector_and_writes_the_papers_metric
 def test_shared_policy_equals_the_sb3_actor_and_holds_no_pickle(tiny_run):
     from stable_baselines3 import PPO
 
-    from acn.models.policy_io import WalkingPolicy
+    from acn.rl.policy_io import WalkingPolicy
 
     out = tiny_run[0]
     assert sorted(p.name for p in (out / "policy").iterdir()) == ["config.json", "model.safetensors"]
@@ -175,7 +175,7 @@ def test_shared_policy_equals_the_sb3_actor_and_holds_no_pickle(tiny_run):
     theirs, _ = model.predict(z, deterministic=True)
     np.testing.assert_allclose(policy.residual(states), theirs, atol=1e-5)
     # as a toolkit Policy: joint targets = trot + scale * u
-    from acn.toolkit.policies import Trot
+    from acn.sim.policies import Trot
 
     t = 0.26
     np.testing.assert_allclose(policy(states[0].astype(np.float64), t),

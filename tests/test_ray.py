@@ -24,10 +24,10 @@ pytest.importorskip("ray")
 pytestmark = pytest.mark.xdist_group("ray")  # `make test` runs tests on 2 workers: one Ray instance, on one of them
 
 from acn.datasets.record import record  # noqa: E402
-from acn.toolkit import parallel  # noqa: E402
-from acn.toolkit.backends import SimConfig  # noqa: E402
-from acn.toolkit.collector import CollectConfig, collect_episodes  # noqa: E402
-from acn.toolkit.resim import Resimulator  # noqa: E402
+from acn.sim import parallel  # noqa: E402
+from acn.sim.backends import SimConfig  # noqa: E402
+from acn.sim.collector import CollectConfig, collect_episodes  # noqa: E402
+from acn.sim.resim import Resimulator  # noqa: E402
 
 RAY = parallel.RayConfig(cpus=2)
 CONFIG = CollectConfig(target="mujoco", policy="random", episodes=4, seconds=0.4, seed=11)
@@ -113,7 +113,7 @@ def rows():
 
 
 def test_control_jacobian_on_ray_equals_local(ray_address, rows):
-    from acn.models.sensitivity import control_jacobian
+    from acn.corrector.sensitivity import control_jacobian
 
     states, actions = rows
     channels = ["base_pos_z", "FR_thigh_pos", "RL_calf_vel"]
@@ -130,7 +130,7 @@ def test_control_jacobian_on_ray_equals_local(ray_address, rows):
 def test_resimulator_batch_on_ray_equals_local(ray_address, rows, backend):
     """Three models (latency; a dead band MuJoCo cannot express natively), K steps, previous
     actions, rows interleaved between models: bit for bit."""
-    from acn.toolkit.robot import ModelParams
+    from acn.sim.robot import ModelParams
 
     states, actions = rows
     n, k = len(states) - 3, 3

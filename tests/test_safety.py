@@ -21,7 +21,7 @@ import pytest
 
 from acn.atomic import write_file
 from acn.datasets.reader import load_frames
-from acn.toolkit.state import ACTION_NAMES, STATE_NAMES
+from acn.sim.state import ACTION_NAMES, STATE_NAMES
 
 IMPORT_ARGS = ("--control-hz", "50", "--kp", "60", "--kd", "1.5", "--torque-limit", "33.5")
 
@@ -193,7 +193,7 @@ def test_import_cuts_and_counts_rows_no_a1_can_produce(acn, tmp_path, small_data
 # ----------------------------------------------------------------------------- inputs together
 def test_datasets_of_two_directions_are_refused_together(acn, tmp_path, small_dataset):
     from acn.datasets.record import record
-    from acn.toolkit.collector import CollectConfig
+    from acn.sim.collector import CollectConfig
 
     reverse = record(CollectConfig(source="mujoco", target="pybullet", episodes=1, seconds=0.2), tmp_path / "rev")
     _one_line_refusal(acn("fit", str(small_dataset), str(reverse), "--out", str(tmp_path / "m")),
@@ -202,8 +202,8 @@ def test_datasets_of_two_directions_are_refused_together(acn, tmp_path, small_da
 
 def test_datasets_of_two_control_rates_name_the_flag(acn, tmp_path, small_dataset):
     from acn.datasets.record import record
-    from acn.toolkit.backends import SimConfig
-    from acn.toolkit.collector import CollectConfig
+    from acn.sim.backends import SimConfig
+    from acn.sim.collector import CollectConfig
 
     fast = record(CollectConfig(target="mujoco", episodes=1, seconds=0.2,
                                 sim=SimConfig(physics_dt=0.001, substeps=10)), tmp_path / "fast")
@@ -247,7 +247,7 @@ def test_every_help_shows_its_defaults():
 
 
 def test_a_tiny_ppo_request_stays_tiny():
-    from acn.models.ppo import PPOConfig
+    from acn.rl.ppo import PPOConfig
 
     small = PPOConfig(timesteps=100).sized_for_run()
     assert small.n_steps * small.n_envs <= 100 + small.n_envs and small.final_eval_episodes == 2
@@ -260,7 +260,7 @@ def test_mujoco_writes_no_log_file_into_the_working_directory(tmp_path, monkeypa
 
     import mujoco
 
-    importlib.import_module("acn.toolkit")  # which turns MuJoCo's own log off
+    importlib.import_module("acn.sim")  # which turns MuJoCo's own log off
 
     monkeypatch.chdir(tmp_path)
     m = mujoco.MjModel.from_xml_string('<mujoco><worldbody><body><joint name="j"/><geom size=".1"/></body>'
@@ -273,7 +273,7 @@ def test_mujoco_writes_no_log_file_into_the_working_directory(tmp_path, monkeypa
 
 
 def test_an_interrupted_ppo_overwrite_leaves_the_old_run(tmp_path, monkeypatch):
-    from acn.models import ppo
+    from acn.rl import ppo
 
     out = tmp_path / "run"
     out.mkdir()

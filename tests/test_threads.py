@@ -7,9 +7,9 @@ import time
 import pytest
 import torch
 
-from acn.models.corrector import Corrector, default_config
-from acn.models.fit import FitConfig, Split, train
-from acn.models.threads import AdaptiveThreads, thread_candidates
+from acn.corrector.corrector import Corrector, default_config
+from acn.corrector.fit import FitConfig, Split, train
+from acn.corrector.threads import AdaptiveThreads, thread_candidates
 
 
 def test_candidates_are_one_then_powers_of_two_up_to_all():

@@ -17,7 +17,7 @@ import pytest
 import rerun as rr
 import torch
 
-from acn.toolkit.state import FOOT_NAMES, GROUPS, JOINT_NAMES, STATE_NAMES
+from acn.sim.state import FOOT_NAMES, GROUPS, JOINT_NAMES, STATE_NAMES
 from conftest import load
 
 LINKS = ("trunk", *(f"{leg}_{part}" for leg in FOOT_NAMES for part in ("hip", "upper", "lower")))
@@ -28,7 +28,7 @@ def make_corrector(directory, bias: float = 0.0, **config_changes):
     ``config_changes`` are written into its config.json (to make foreign correctors)."""
     import json
 
-    from acn.models.corrector import CONFIG, Corrector, default_config
+    from acn.corrector.corrector import CONFIG, Corrector, default_config
 
     model = Corrector(default_config("mujoco-jacobian", hidden=16, layers=1))
     with torch.no_grad():
@@ -101,8 +101,8 @@ def test_joint_series_equal_the_dataset_columns(recording, small_dataset):
 
 
 def test_link_transforms_equal_mujoco_forward_kinematics(recording, small_dataset):
-    from acn.toolkit.backends import SimConfig
-    from acn.toolkit.backends.mujoco_backend import build_spec
+    from acn.sim.backends import SimConfig
+    from acn.sim.backends.mujoco_backend import build_spec
 
     frame = 17
     state = episode_columns(small_dataset, 0)["target.observation.state"][frame].astype(np.float64)
@@ -148,7 +148,7 @@ def test_corrected_target_with_zero_correction_is_the_recorded_target(recording)
 
 def test_the_corrector_runs_in_closed_loop(small_dataset, tmp_path):
     from acn.datasets.reader import load_frames
-    from acn.models.corrector import Corrector
+    from acn.corrector.corrector import Corrector
     from acn.viz.trajectories import corrected_target, recorded_episode
 
     frames = load_frames(small_dataset)
@@ -163,7 +163,7 @@ def test_a_corrector_fitted_on_top_of_effects_runs_on_a_target_with_them(small_d
     """acn-fit --model: the view re-simulates the target the corrector was fitted for (here a
     zero correction on a ground with a 0.06 s time constant: the robot sinks about 12 mm)."""
     from acn.datasets.reader import load_frames
-    from acn.models.corrector import Corrector
+    from acn.corrector.corrector import Corrector
     from acn.viz.trajectories import corrected_target, recorded_episode
 
     effects = [{"name": "ground_softness", "params": {"timeconst": 0.06}}]
@@ -178,7 +178,7 @@ def test_a_corrector_fitted_on_top_of_effects_runs_on_a_target_with_them(small_d
 
 def test_unpaired_dataset_and_default_output(tmp_path, monkeypatch):
     from acn.datasets.record import record
-    from acn.toolkit.collector import CollectConfig
+    from acn.sim.collector import CollectConfig
     from acn.viz.view import ViewConfig, view
 
     meas = record(CollectConfig(target=None, episodes=1, seconds=0.3, seed=2), tmp_path / "meas")
@@ -199,8 +199,8 @@ def test_unpaired_dataset_and_default_output(tmp_path, monkeypatch):
 
 def test_a_log_without_trunk_pose_or_sensors_still_shows_its_legs(small_dataset, tmp_path):
     from acn.datasets.reader import load_frames
-    from acn.toolkit.robot import STANDING_HEIGHT
-    from acn.toolkit.state import SLICES
+    from acn.sim.robot import STANDING_HEIGHT
+    from acn.sim.state import SLICES
     from acn.viz.trajectories import EpisodeView, Trajectory
     from acn.viz.view import write_rrd
 
@@ -270,8 +270,8 @@ def hidden(tmp_path_factory):
 
     from acn.cli import view_main
     from acn.datasets.record import record
-    from acn.toolkit.collector import CollectConfig
-    from acn.toolkit.effects import AppliedEffect, Model, get_effect
+    from acn.sim.collector import CollectConfig
+    from acn.sim.effects import AppliedEffect, Model, get_effect
 
     tmp = tmp_path_factory.mktemp("diagnosis")
     damping = AppliedEffect(get_effect("joint_damping"), {"value": np.full(12, DAMPING)})
@@ -289,9 +289,9 @@ def hidden(tmp_path_factory):
 def one_step(data, model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Independently: the model set to every measured state, the measured action applied.
     Returns (frame of the prediction, measured s_{t+1}, predicted s_{t+1})."""
-    from acn.datasets.measurements import load_measurements
-    from acn.toolkit.effects import Model
-    from acn.toolkit.resim import Resimulator
+    from acn.measurements.data import load_measurements
+    from acn.sim.effects import Model
+    from acn.sim.resim import Resimulator
 
     m = load_measurements(data)
     model = Model.load(model)

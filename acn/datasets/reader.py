@@ -21,8 +21,8 @@ import numpy as np
 from acn.datasets import schema
 from acn.errors import UserError
 from acn.jsonfile import read_json
-from acn.toolkit import plausible
-from acn.toolkit.state import ACTION_DIM, ACTION_NAMES, STATE_DIM, STATE_NAMES, WRAPPED_INDEX, wrap_angle
+from acn.sim import plausible
+from acn.sim.state import ACTION_DIM, ACTION_NAMES, STATE_DIM, STATE_NAMES, WRAPPED_INDEX, wrap_angle
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
@@ -160,13 +160,13 @@ def percentile_filter(gap: np.ndarray, percentile: float = 70.0) -> np.ndarray:
 
 def refuse_implausible(path: Path, episode: np.ndarray, parts: list[tuple[str, np.ndarray, object, tuple]]) -> None:
     """One line naming the episode and column of the first value no A1 can produce
-    (``acn.toolkit.plausible``) in ``parts``: (what, values, bound, column names) each."""
+    (``acn.sim.plausible``) in ``parts``: (what, values, bound, column names) each."""
     for what, values, bound, names in parts:
         first = plausible.first_beyond(values, bound, names)
         if first is not None:
             row, name, value = first
             raise UserError(f"{path}: episode {int(episode[row])} has {what} {name} = {value:.3g}, which no A1 can "
-                            "produce (acn-import cuts such rows; the bounds are in acn.toolkit.plausible)")
+                            "produce (acn-import cuts such rows; the bounds are in acn.sim.plausible)")
 
 
 def load_paired(paths: list[str | Path]) -> PairedTransitions:

@@ -5,7 +5,7 @@ streaming finished episodes back; the parent only writes, in episode order, so t
 does not depend on the number of workers and writing overlaps simulation. Each child runs
 ``PairedRollout.episode`` over its share of indices; ``collect_episodes(config, indices)`` is
 the same work as one pure call, which Ray runs instead with ``ray=RayConfig(...)``
-(``acn.toolkit.parallel.episodes_on_ray``: one task per episode, consumed in episode order by
+(``acn.sim.parallel.episodes_on_ray``: one task per episode, consumed in episode order by
 the same writer loop, so the dataset is byte-identical to a local one with the same seed).
 ``shards=K`` (Ray only) writes K datasets in parallel and merges them (``acn.datasets.shards``).
 
@@ -27,17 +27,17 @@ from typing import TYPE_CHECKING, Callable, Iterator, Sequence
 from acn.datasets import schema
 from acn.datasets.writer import DatasetWriter
 from acn.errors import UserError
-from acn.toolkit.backends import simulator_version
-from acn.toolkit.collector import FALL_RULE, CollectConfig, Episode, LoadCorrector, rollout_for
-from acn.toolkit.state import ACTION_NAMES, STATE_NAMES
+from acn.sim.backends import simulator_version
+from acn.sim.collector import FALL_RULE, CollectConfig, Episode, LoadCorrector, rollout_for
+from acn.sim.state import ACTION_NAMES, STATE_NAMES
 
 if TYPE_CHECKING:  # pragma: no cover
-    from acn.toolkit.parallel import RayConfig
+    from acn.sim.parallel import RayConfig
 
 # Children are forked from a clean server process that has imported the simulators once.
 _CTX = mp.get_context("forkserver")
-_CTX.set_forkserver_preload(["acn.toolkit.collector", "acn.toolkit.backends.pybullet_backend",
-                             "acn.toolkit.backends.mujoco_backend"])
+_CTX.set_forkserver_preload(["acn.sim.collector", "acn.sim.backends.pybullet_backend",
+                             "acn.sim.backends.mujoco_backend"])
 
 
 class Interrupted(Exception):
@@ -69,8 +69,8 @@ def collection_metadata(cfg: CollectConfig) -> dict:
 
 def config_from_metadata(acn: dict, **overrides) -> CollectConfig:
     """The collection config a dataset was recorded with (inverse of ``collection_metadata``)."""
-    from acn.toolkit.collector import InitNoise
-    from acn.toolkit.robot import ModelParams
+    from acn.sim.collector import InitNoise
+    from acn.sim.robot import ModelParams
 
     sim = schema.control_config(acn, params=ModelParams.from_json(acn["model_params"]))
     kw = dict(source=acn["source"]["simulator"], target=(acn["target"] or {}).get("simulator"), policy=acn["policy"],
@@ -131,19 +131,19 @@ def record(cfg: CollectConfig, out: str | Path, workers: int = 1, overwrite: boo
     sees a ``ShardEpisode`` as each shard writes it, shards interleaved). ``indices``: the
     collection indices to run (default all ``cfg.episodes``; a shard runs a contiguous part).
     ``load_corrector``: turns ``cfg.corrector`` into the corrector object where the episodes run
-    (``acn.models.Corrector.load``; needed when ``cfg.corrector`` is set).
+    (``acn.corrector.Corrector.load``; needed when ``cfg.corrector`` is set).
     """
     cfg.validate()
     if cfg.corrector and load_corrector is None:
         raise ValueError(f"cfg.corrector names {cfg.corrector!r} but no load_corrector was given "
-                         "(e.g. acn.models.Corrector.load)")
+                         "(e.g. acn.corrector.Corrector.load)")
     if workers < 1:
         raise ValueError(f"--workers must be >= 1, got {workers}")
     if shards < 1:
         raise ValueError(f"--shards must be >= 1, got {shards}")
     indices = range(cfg.episodes) if indices is None else indices
     if ray is not None:
-        from acn.toolkit import parallel
+        from acn.sim import parallel
 
         with parallel.ray_session(ray):
             if shards > 1:
@@ -204,7 +204,7 @@ def _stop(procs: list) -> None:
 def _commit_quietly(writer: DatasetWriter, cfg: CollectConfig) -> Path:
     """Commit with SIGINT/SIGTERM held off, so a second Ctrl-C cannot tear the rename; then the
     answer to hidden effects goes beside the dataset (a stale answer from an overwritten one goes)."""
-    from acn.toolkit.hidden import ANSWER, answer_path, write_answer
+    from acn.sim.hidden import ANSWER, answer_path, write_answer
 
     old_int = signal.signal(signal.SIGINT, signal.SIG_IGN)
     old_term = signal.signal(signal.SIGTERM, signal.SIG_IGN)

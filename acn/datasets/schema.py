@@ -3,7 +3,7 @@
 Per frame (one control step t of one episode):
 
 =============================  ======================================================
-``observation.state``          s_t of the source simulator (``acn.toolkit.state`` names)
+``observation.state``          s_t of the source simulator (``acn.sim.state`` names)
 ``action``                     a_t sent to the source (joint targets or torques)
 ``observation.effort``         mean applied joint torque over the step in the source, N m
 ``next.observation.state``     s_{t+1} of the source (so the last transition is complete)
@@ -28,10 +28,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from acn.outputs import Output, json_object
-from acn.toolkit.state import ACTION_DIM, ACTION_NAMES, HYBRID_NAMES, STATE_DIM, STATE_NAMES
+from acn.sim.state import ACTION_DIM, ACTION_NAMES, HYBRID_NAMES, STATE_DIM, STATE_NAMES
 
 if TYPE_CHECKING:
-    from acn.toolkit.backends import SimConfig
+    from acn.sim.backends import SimConfig
 
 ACN_KEY = "acn"
 FORMAT_VERSION = 2  # 2: action.hybrid with the velocity target (48 wide, was 36)
@@ -148,7 +148,7 @@ def control_config(acn: dict, **extra) -> SimConfig:
     """The simulator settings an ``acn`` block records (rates, action mode, gains, torque limit,
     what the accelerometer reads; an unstated reading is the schema's mean), plus ``extra``
     ``SimConfig`` fields."""
-    from acn.toolkit.backends import SimConfig  # at run time only: readers of the schema need no simulator
+    from acn.sim.backends import SimConfig  # at run time only: readers of the schema need no simulator
 
     return SimConfig(physics_dt=acn["physics_dt"], substeps=acn["substeps"], action_mode=acn["action_mode"],
                      kp=acn["kp"], kd=acn["kd"], torque_limit=acn["torque_limit"],

@@ -31,8 +31,8 @@ from acn.atomic import move_into_place, temporary_beside
 from acn.outputs import refuse_foreign
 from acn.datasets import schema
 from acn.datasets.record import Interrupted, _commit_quietly, _raise_interrupt, record
-from acn.toolkit.collector import CollectConfig
-from acn.toolkit.parallel import RayConfig, _remote, _unwrap, import_ray
+from acn.sim.collector import CollectConfig
+from acn.sim.parallel import RayConfig, _remote, _unwrap, import_ray
 
 CANCEL_WAIT_S = 120.0  # after an interrupt, how long the shards get to commit what they finished
 

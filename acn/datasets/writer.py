@@ -28,8 +28,8 @@ from acn.atomic import move_into_place, temporary_beside
 from acn.datasets import schema
 from acn.errors import UserError
 from acn.outputs import refuse_foreign
-from acn.toolkit.collector import Episode, Trace
-from acn.toolkit.state import ACTION_DIM
+from acn.sim.collector import Episode, Trace
+from acn.sim.state import ACTION_DIM
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 

@@ -3,7 +3,7 @@
 ``view.py`` runs the command; ``trajectories.py`` says what is shown (episodes, named
 trajectories, extra series, panels and text); ``diagnosis.py`` adds a model's one-step
 predictions, residuals and error per added effect (``--model``, ``--diagnosis``);
-``kinematics.py`` and ``meshes.py`` give the A1's link poses and meshes; ``log.py`` logs
+``meshes.py`` gives the A1's meshes (link poses come from ``acn.sim.kinematics``); ``log.py`` logs
 columnar; ``blueprint.py`` is the layout.
 """
 

@@ -23,7 +23,7 @@ import math
 
 import rerun.blueprint as rrb
 
-from acn.toolkit.state import FOOT_NAMES, JOINT_NAMES
+from acn.sim.state import FOOT_NAMES, JOINT_NAMES
 from acn.viz.trajectories import EpisodeView
 
 

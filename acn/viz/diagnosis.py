@@ -32,14 +32,14 @@ from pathlib import Path
 
 import numpy as np
 
-from acn.datasets.measurements import Measurements, load_measurements
+from acn.measurements.data import Measurements, load_measurements
 from acn.datasets.reader import RecordedFrames, state_difference
 from acn.errors import UserError
 from acn.jsonfile import read_json
-from acn.toolkit.backends import BACKENDS
-from acn.toolkit.effects import Model
-from acn.toolkit.resim import Resimulator
-from acn.toolkit.state import FOOT_NAMES, GROUPS, JOINT_NAMES, SLICES, STATE_NAMES
+from acn.sim.backends import BACKENDS
+from acn.sim.effects import Model
+from acn.sim.resim import Resimulator
+from acn.sim.state import FOOT_NAMES, GROUPS, JOINT_NAMES, SLICES, STATE_NAMES
 from acn.viz.trajectories import COLORS, Document, EpisodeView, Panel, Series, Trajectory
 
 VERDICTS = ("none", "effect", "unexplained")
@@ -120,8 +120,8 @@ def load_diagnosis(path: str | Path) -> dict:
 
 def prepared_measurements(path: Path, model: Model, side: str = "source"):
     """The measurements with derived velocities, and what the diagnosis compares: the
-    ``acn.models.diagnose.problem.Problem`` (channels, their spreads, previous actions per row)."""
-    from acn.models.diagnose.problem import DiagnoseConfig, prepare
+    ``acn.diagnosis.problem.Problem`` (channels, their spreads, previous actions per row)."""
+    from acn.diagnosis.problem import DiagnoseConfig, prepare
 
     data = load_measurements(path, side)
     return prepare(data, model, DiagnoseConfig(horizons=(1,), step_seconds=None))
@@ -137,7 +137,7 @@ def predict_episode(problem, sim: Resimulator, stages: list[Stage], episode: int
     s, n = len(stages), len(ok)
     actions = d.action[ok]
     if corrector is not None:
-        from acn.models.diagnose.problem import corrected
+        from acn.diagnosis.problem import corrected
 
         actions = corrected(corrector, d.state[ok], actions)
     model = np.repeat(np.arange(s), n)
@@ -249,7 +249,7 @@ def add_diagnosis_view(model_spec: str | Path, frames: RecordedFrames, episodes:
     stages = effect_stages(model)
     corrector = None
     if model.corrector:
-        from acn.models.corrector import Corrector
+        from acn.corrector.corrector import Corrector
 
         corrector = Corrector.load(model.corrector)
     nominal = str(model_spec) in BACKENDS

@@ -10,7 +10,7 @@ Entity layout under an episode root ``episode_NNN`` (one subtree per episode):
 - ``robots/<trajectory>/trunk_path``    static ``LineStrips3D`` of the trunk origin;
 - ``joints/<joint>/<trajectory>``       joint angle, rad (``Scalars``, named and coloured series);
 - ``divergence/<trajectory>/<group>``   ||s_trajectory - s_reference|| over a channel group
-  (``acn.toolkit.state.GROUPS``, angles wrapped), in the group's units;
+  (``acn.sim.state.GROUPS``, angles wrapped), in the group's units;
 - ``gait/<trajectory>/<foot>``          stance band: a constant lane value while the foot is in
   contact, a gap (NaN) in swing.
 
@@ -32,9 +32,9 @@ import numpy as np
 import rerun as rr
 
 from acn.datasets.reader import state_difference
-from acn.toolkit.robot import STANDING_HEIGHT
-from acn.toolkit.state import FOOT_NAMES, GROUPS, JOINT_NAMES, SLICES, STATE_DIM
-from acn.toolkit.kinematics import RobotKinematics
+from acn.sim.robot import STANDING_HEIGHT
+from acn.sim.state import FOOT_NAMES, GROUPS, JOINT_NAMES, SLICES, STATE_DIM
+from acn.sim.kinematics import RobotKinematics
 from acn.viz.meshes import LinkMesh
 from acn.viz.trajectories import EpisodeView, Trajectory
 

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from acn.toolkit.robot import urdf_path
-from acn.toolkit.rotations import quat_to_matrix, rpy_to_quat
+from acn.sim.robot import urdf_path
+from acn.sim.rotations import quat_to_matrix, rpy_to_quat
 
 DEFAULT_CELL = 0.007  # m, vertex-clustering grid of the simplified meshes
 

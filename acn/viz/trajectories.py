@@ -15,7 +15,7 @@ import numpy as np
 
 from acn.datasets.reader import RecordedFrames
 from acn.errors import UserError
-from acn.toolkit.state import ACTION_NAMES, STATE_NAMES
+from acn.sim.state import ACTION_NAMES, STATE_NAMES
 
 # One colour per trajectory name (RGB, 0-255), used for meshes, markers and series alike.
 COLORS: dict[str, tuple[int, int, int]] = {
@@ -34,7 +34,7 @@ class Trajectory:
 
     name: str            # entity name: source, target, corrected, measured, model, ...
     label: str           # legend text, e.g. "mujoco (target)"
-    state: np.ndarray    # (T, 43) state vectors (``acn.toolkit.state``)
+    state: np.ndarray    # (T, 43) state vectors (``acn.sim.state``)
     frame: np.ndarray    # (T,) int, frame indices within the episode (ascending)
 
     @property
@@ -160,8 +160,8 @@ def corrected_target(frames: RecordedFrames, episode: EpisodeView, corrector) ->
     up. Frame k of the result is the state before the k-th action.
     """
     from acn.datasets.record import config_from_metadata
-    from acn.toolkit.backends import SimulationDiverged, make_backend
-    from acn.toolkit.effects import Model
+    from acn.sim.backends import SimulationDiverged, make_backend
+    from acn.sim.effects import Model
 
     import torch
 

@@ -55,7 +55,7 @@ def default_rrd_path(dataset: Path) -> Path:
 
 def load_corrector(directory: Path, frames: RecordedFrames):
     """A frozen corrector that fits this dataset, or a one-line ``UserError``."""
-    from acn.models.corrector import CONFIG, Corrector
+    from acn.corrector.corrector import CONFIG, Corrector
 
     if not frames.paired:
         raise UserError(f"--corrector needs a paired dataset (source and target); {frames.path} has measurements only")
@@ -83,7 +83,7 @@ def prepare(cfg: ViewConfig) -> tuple[RecordedFrames, list[EpisodeView]]:
     if cfg.diagnosis is not None and cfg.model is None:
         raise UserError("--diagnosis needs --model (the model whose predictions are shown)")
     if cfg.model is not None:  # bad model or diagnosis files fail before anything is read
-        from acn.toolkit.effects import Model
+        from acn.sim.effects import Model
         from acn.viz.diagnosis import load_diagnosis
 
         Model.parse(cfg.model)
@@ -107,7 +107,7 @@ def prepare(cfg: ViewConfig) -> tuple[RecordedFrames, list[EpisodeView]]:
 
 def record(rec, episodes: list[EpisodeView], mesh_cell: float = DEFAULT_CELL) -> None:
     """Log ``episodes`` into the recording stream ``rec``."""
-    from acn.toolkit.kinematics import RobotKinematics
+    from acn.sim.kinematics import RobotKinematics
     from acn.viz.log import log_episode
 
     kinematics, meshes = RobotKinematics(), link_meshes(mesh_cell)

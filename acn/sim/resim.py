@@ -1,0 +1,202 @@
+"""Batch re-simulation from recorded states: the engine behind diagnosis, labels and oracles.
+
+Given models (``SimConfig`` each: control settings + physical parameters), recorded states
+s_t, the actions a_t .. a_{t+K-1} and the actions before t (a model with latency still applies
+them early in the step), ``Resimulator.run`` returns the predicted s_{t+1} .. s_{t+K} and the
+mean applied torque of every control step, row by row. Each row may use another model, so a
+batch can hold many parameter values (finite differences, fits) at once.
+
+- MuJoCo: ``mujoco.rollout`` on a thread pool, each model compiled once. The physics state
+  comes from the state vector without MjData (``PhysicsLayout``); the control sequence per
+  physics step carries the latency (``Actuation.commands``). A law MuJoCo cannot express
+  (a dead band) is evaluated in numpy between single-step rollouts.
+- PyBullet: one simulator per model, ``set_state`` / ``step`` row by row.
+
+Predicted contacts are not simulated state: they come back NaN.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from acn.sim import parallel
+from acn.sim.actuation import Actuation, history_window
+from acn.sim.backends import SimConfig, SimulationDiverged, make_backend
+from acn.sim.state import ACTION_DIM, SLICES, STATE_DIM
+
+MAX_BATCH_FLOATS = 4_000_000  # rollout output held at once (~32 MB)
+
+
+@dataclass
+class Prediction:
+    """What a re-simulation predicts for N rows and K control steps."""
+
+    state: np.ndarray     # (N, K, 43) s_{t+1} .. s_{t+K}; contacts NaN; NaN rows where diverged
+    effort: np.ndarray    # (N, K, 12) mean applied joint torque over each control step, N m
+    diverged: np.ndarray  # (N,) bool: the simulation blew up (non-finite or absurd state)
+
+
+class Resimulator:
+    """Re-simulates recorded states under one or several models of one backend."""
+
+    def __init__(self, backend: str, configs: SimConfig | Sequence[SimConfig], threads: int | None = None) -> None:
+        self.backend = backend
+        self.configs = [configs] if isinstance(configs, SimConfig) else list(configs)
+        if not self.configs:
+            raise ValueError("a Resimulator needs at least one model")
+        base = self.configs[0]
+        for c in self.configs:
+            if (c.physics_dt, c.substeps, c.action_mode, c.hybrid, c.imu_acc) != \
+                    (base.physics_dt, base.substeps, base.action_mode, base.hybrid, base.imu_acc):
+                raise ValueError("all models of one Resimulator share physics_dt, substeps, action mode, "
+                                 "whether the actions are hybrid commands and what the accelerometer reads")
+        self.actuation = [Actuation.from_config(c) for c in self.configs]
+        self.threads = threads or max(1, min(parallel.usable_cpus(), 8))
+        self._models: list | None = None   # MuJoCo models, compiled on first use
+        self._sims: dict[int, object] = {}  # PyBullet simulators, built on first use
+
+    @property
+    def control_dt(self) -> float:
+        return self.configs[0].control_dt
+
+    def run(self, states: np.ndarray, actions: np.ndarray, previous: np.ndarray | None = None,
+            model: np.ndarray | int | None = None) -> Prediction:
+        """Predict K control steps from each of N states.
+
+        ``states`` (N, 43) recorded s_t; ``actions`` (N, K, A) or (N, A) the actions from t on
+        (A = ``SimConfig.action_dim``: 12, or 60 with the gains); ``previous`` (N, P, A) the actions
+        before t, oldest first (optional); ``model`` (N,) index into the models per row (default:
+        model 0 for every row).
+        """
+        states = np.asarray(states, dtype=np.float64)
+        actions = np.asarray(actions, dtype=np.float64)
+        if actions.ndim == 2:
+            actions = actions[:, None, :]
+        n, width = len(states), self.configs[0].action_dim
+        if states.shape != (n, STATE_DIM) or actions.shape[0] != n or actions.shape[2] != width:
+            raise ValueError(f"states (N, {STATE_DIM}) and actions (N, K, {width}) must match; "
+                             f"got {states.shape} and {actions.shape}")
+        index = np.zeros(n, dtype=int) if model is None else np.broadcast_to(np.asarray(model, dtype=int), (n,))
+        out = Prediction(np.full((n, actions.shape[1], STATE_DIM), np.nan),
+                         np.full((n, actions.shape[1], ACTION_DIM), np.nan), np.zeros(n, dtype=bool))
+        if n == 0:
+            return out
+        ray = parallel.active_executor()  # Ray (acn.sim.parallel): large batches in chunks, same result
+        if ray is not None and ray.takes(self.backend, n, actions.shape[1]):
+            return ray.resimulate(self.backend, self.configs, states, actions, previous, index)
+        if self.backend == "mujoco":
+            self._run_mujoco(index, states, actions, previous, out)
+            return out
+        for m in np.unique(index):
+            rows = np.flatnonzero(index == m)
+            window = history_window(actions[rows], None if previous is None else np.asarray(previous)[rows],
+                                    self.actuation[m].history)
+            self._run_backend(int(m), rows, states[rows], window, out)
+        return out
+
+    # ----- MuJoCo: mujoco.rollout ------------------------------------------------------------
+    def _compile(self) -> None:
+        import mujoco
+
+        from acn.sim.backends.mujoco_backend import PhysicsLayout, build_spec
+
+        self._models = [build_spec(c).compile() for c in self.configs]
+        self._layout = PhysicsLayout(self._models[0])
+        self._datas = [mujoco.MjData(self._models[0]) for _ in range(self.threads)]
+
+    def _run_mujoco(self, index: np.ndarray, states: np.ndarray, actions: np.ndarray, previous, out: Prediction) -> None:
+        """All rows in as few rollout calls as memory allows, each row with its own model."""
+        import mujoco.rollout
+
+        if self._models is None:
+            self._compile()
+        layout, sub, k = self._layout, self.configs[0].substeps, actions.shape[1]
+        offset = np.stack([a.offset for a in self.actuation])[index]
+        frame = np.stack([c.params.base_frame_offset for c in self.configs])[index]
+        width = self.actuation[0].command_width
+        commands = np.empty((len(states), k * sub, width))
+        for m in np.unique(index):  # per-physics-step commands carry each model's latency
+            rows = np.flatnonzero(index == m)
+            act = self.actuation[m]
+            window = history_window(actions[rows], None if previous is None else np.asarray(previous)[rows],
+                                    act.history)
+            commands[rows] = act.commands(window)
+        native = np.array([a.native for a in self.actuation])[index]
+        chunk = max(1, MAX_BATCH_FLOATS // (k * sub * (layout.size + width)))
+        with mujoco.rollout.Rollout(nthread=self.threads) as pool:
+            for lo in range(0, len(states), chunk):
+                sel = slice(lo, min(lo + chunk, len(states)))
+                phys0 = layout.to_physics(states[sel], offset[sel], frame[sel])
+                models = [self._models[i] for i in index[sel]]
+                if native[sel].all():
+                    phys, torque = pool.rollout(models, self._datas, phys0, commands[sel])
+                else:
+                    phys, torque = self._step_by_step(pool, models, index[sel], phys0, commands[sel])
+                self._store(np.arange(len(states))[sel], phys0, phys, torque, offset[sel], frame[sel], k, out)
+
+    def _step_by_step(self, pool, models: list, index: np.ndarray, phys0: np.ndarray, commands: np.ndarray):
+        """One physics step per rollout call; rows whose law MuJoCo cannot express get their
+        torque from ``Actuation.torque`` in numpy in between (the others their command)."""
+        n, steps = commands.shape[:2]
+        layout = self._layout
+        phys = np.empty((n, steps, layout.size))
+        torque = np.empty((n, steps, ACTION_DIM))
+        x = phys0
+        python_law = [np.flatnonzero(index == m) for m in np.unique(index) if not self.actuation[m].native]
+        for j in range(steps):
+            ctrl = commands[:, j].copy()
+            for rows in python_law:
+                act = self.actuation[index[rows[0]]]
+                ctrl[rows, :ACTION_DIM] = act.torque(commands[rows, j], x[rows][:, 1 + layout.qadr],
+                                                     x[rows][:, 1 + layout.nq + layout.dadr])
+            st, sens = pool.rollout(models, self._datas, x, ctrl[:, None, :])
+            phys[:, j], torque[:, j] = st[:, -1], sens[:, -1]
+            x = st[:, -1]
+        return phys, torque
+
+    def _store(self, rows, phys0, phys, torque, offset: np.ndarray, frame: np.ndarray, k: int, out: Prediction) -> None:
+        config = self.configs[0]
+        sub = config.substeps
+        ends = phys[:, sub - 1::sub]                               # (n, K, size)
+        starts = np.concatenate([phys0[:, None], ends[:, :-1]], axis=1)
+        dt = self.control_dt
+        if config.imu_acc == "instant" and sub > 1:  # the accelerometer reads each control step's last physics step
+            starts, dt = phys[:, sub - 2::sub], config.physics_dt
+        n = len(rows)
+        pred = self._layout.to_states(ends.reshape(n * k, -1), starts.reshape(n * k, -1), np.repeat(offset, k, axis=0),
+                                      dt, np.repeat(frame, k, axis=0)).reshape(n, k, STATE_DIM)
+        eff = torque.reshape(n, k, sub, ACTION_DIM).mean(axis=2)
+        bad = ~np.isfinite(pred[..., : SLICES["contact"].start]).all(axis=(1, 2))
+        bad |= np.abs(pred[:, :, SLICES["joint_vel"]]).max(axis=(1, 2), initial=0.0) > 500.0
+        pred[bad], eff[bad] = np.nan, np.nan
+        out.state[rows], out.effort[rows], out.diverged[rows] = pred, eff, bad
+
+    # ----- any backend: set_state / step -------------------------------------------------------
+    def _run_backend(self, m: int, rows: np.ndarray, states: np.ndarray, window: np.ndarray, out: Prediction) -> None:
+        if m not in self._sims:
+            self._sims[m] = make_backend(self.backend, self.configs[m])
+        sim, hist = self._sims[m], self.actuation[m].history
+        for i, r in enumerate(rows):
+            sim.set_state(states[i], previous_actions=window[i, :hist])
+            try:
+                for j, a in enumerate(window[i, hist:]):
+                    out.effort[r, j] = sim.step(a)
+                    out.state[r, j] = sim.get_state()
+            except SimulationDiverged:
+                out.state[r], out.effort[r], out.diverged[r] = np.nan, np.nan, True
+                continue
+            out.state[r, :, SLICES["contact"]] = np.nan
+
+    def close(self) -> None:
+        for sim in self._sims.values():
+            sim.close()
+        self._sims.clear()
+
+    def __enter__(self) -> "Resimulator":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
