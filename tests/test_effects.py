@@ -291,9 +291,9 @@ def test_random_hidden_effects_are_realistic():
 
 
 def test_the_stance_feet_locate_the_measured_frame():
-    """frames.frame_from_stance: the feet on the ground put a tilted, shifted frame about where
+    """stance.frame_from_stance: the feet on the ground put a tilted, shifted frame about where
     it is (the first guess of base_frame_offset's fit); yaw, which flat ground cannot see, stays 0."""
-    from acn.sim import frames
+    from acn.sim import frames, stance
     from acn.sim.policies import make_policy
 
     frame = np.array([0.03, -0.02, 0.04, 0.03, -0.04, 0.0])
@@ -305,11 +305,11 @@ def test_the_stance_feet_locate_the_measured_frame():
             states.append(s)
             sim.step(policy(s, 0.02 * k))
             s = sim.get_state()
-    guess = frames.frame_from_stance(np.array(states))
+    guess = stance.frame_from_stance(np.array(states))
     # a start for the fit, not its answer: the feet sink by load, which x and y soak up a little
     np.testing.assert_allclose(guess[:3], frame[:3], atol=0.01)           # m
     np.testing.assert_allclose(guess[3:], frame[3:], atol=0.003)          # rad
-    assert frames.frame_from_stance(np.array(states[:10])) is None  # too few rows to say
+    assert stance.frame_from_stance(np.array(states[:10])) is None  # too few rows to say
     # base_frame_offset's check: the true frame brings the stance feet to the ground; the trunk
     # frame read as if it were the measured one, or a frame off the other way, moves them away
     check = get_effect("base_frame_offset").check

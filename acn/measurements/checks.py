@@ -501,7 +501,7 @@ def pose(episodes: list[Episode]) -> list[Finding]:
 
 def stance_feet(states: np.ndarray, most: int = 4000) -> list[Finding]:
     """Feet marked touching (or, without contact flags, the lowest foot) at ground height."""
-    from acn.sim.frames import Stance
+    from acn.sim.stance import Stance
 
     stance = Stance(states, most)
     if len(stance.s) < MIN_ROWS:
@@ -544,7 +544,7 @@ def leg_order(states: np.ndarray, most: int = 2000) -> list[Finding]:
     taken as right without trying the others (0.1-0.4 s)."""
     import itertools
 
-    from acn.sim.frames import Stance
+    from acn.sim.stance import Stance
 
     def spread(order) -> tuple[float, float]:
         stance = Stance(relabel_legs(states, order), most)

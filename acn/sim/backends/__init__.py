@@ -2,19 +2,8 @@
 
 from __future__ import annotations
 
-from acn.sim.backends.base import ACTION_MODES, IMU_ACC_KINDS, Backend, SimConfig, SimulationDiverged, default_state
-
-BACKENDS: tuple[str, ...] = ("pybullet", "mujoco")
-
-
-def simulator_version(name: str) -> str:
-    """Installed version of the named simulator package."""
-    from importlib.metadata import version
-
-    if name not in BACKENDS:
-        raise ValueError(f"unknown simulator {name!r}; choose from {', '.join(BACKENDS)}")
-    return version(name)  # the distribution is named like the backend
-
+from acn.sim.backends.base import (ACTION_MODES, BACKENDS, IMU_ACC_KINDS, Backend, SimConfig, SimulationDiverged,
+                                   default_state, simulator_version)
 
 def make_backend(name: str, config: SimConfig | None = None) -> Backend:
     """Build the named simulator (``pybullet`` or ``mujoco``) with ``config``."""

@@ -62,6 +62,18 @@ def joint_gains(value) -> JointGains:
     return values[0] if len(set(values)) == 1 else values
 
 
+BACKENDS: tuple[str, ...] = ("pybullet", "mujoco")
+
+
+def simulator_version(name: str) -> str:
+    """Installed version of the named simulator package."""
+    from importlib.metadata import version
+
+    if name not in BACKENDS:
+        raise ValueError(f"unknown simulator {name!r}; choose from {', '.join(BACKENDS)}")
+    return version(name)  # the distribution is named like the backend
+
+
 class SimulationDiverged(RuntimeError):
     """The simulator produced a non-finite or physically absurd state."""
 
@@ -175,8 +187,6 @@ class Backend(ABC):
     @property
     def version(self) -> str:
         """Installed version of the simulator package."""
-        from acn.sim.backends import simulator_version
-
         return simulator_version(self.name)
 
     def reset(self, state: np.ndarray | None = None) -> np.ndarray:

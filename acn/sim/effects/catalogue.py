@@ -39,7 +39,7 @@ from __future__ import annotations
 import numpy as np
 
 from acn.errors import UserError
-from acn.sim import frames
+from acn.sim import stance as stance_feet
 from acn.sim.effects.effect import Effect, Parameter
 from acn.sim.robot import GROUND_TIMECONST, ModelParams
 from acn.sim.state import NUM_JOINTS
@@ -126,10 +126,10 @@ def _base_frame_offset(params: ModelParams, values) -> None:
 
 def _base_frame_check(states: np.ndarray, values) -> str:
     """A measured frame must put the feet that carry the robot closer to the ground than the
-    trunk frame does (``acn.sim.frames.Stance``): a frame fitted to what dynamics the model
+    trunk frame does (``acn.sim.stance.Stance``): a frame fitted to what dynamics the model
     lacks (joint springs: z 3.8 mm, 6.2 mm rms against 3.4) moves them away."""
-    stance = frames.Stance(states)
-    if len(stance.s) < frames.MIN_STANCE_ROWS:
+    stance = stance_feet.Stance(states)
+    if len(stance.s) < stance_feet.MIN_STANCE_ROWS:
         return ""
     frame = np.array([*(float(values[k]) for k in ("x", "y", "z", "roll", "pitch")), 0.0])
     before, after = stance.carrying(np.zeros(6)), stance.carrying(frame)
@@ -141,8 +141,8 @@ def _base_frame_check(states: np.ndarray, values) -> str:
 
 
 def _base_frame_guess(states: np.ndarray):
-    """Where the stance feet put the measured frame (``acn.sim.frames.frame_from_stance``)."""
-    frame = frames.frame_from_stance(states)
+    """Where the stance feet put the measured frame (``acn.sim.stance.frame_from_stance``)."""
+    frame = stance_feet.frame_from_stance(states)
     return None if frame is None else dict(zip(("x", "y", "z", "roll", "pitch"), (float(v) for v in frame[:5])))
 
 
