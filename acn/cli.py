@@ -16,6 +16,8 @@ from pathlib import Path
 from typing import Callable, Iterator, NoReturn
 
 from acn.errors import UserError
+from acn.flags import (Flag, add_flags, comma_list, config_from_args, given, given_fields, nonneg_float, nonneg_int, number, positive_float,
+                       positive_int, seconds)
 from acn.outputs import check_input_dir, check_output
 
 EXIT_USAGE, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 2, 130, 141  # 141: 128 + SIGPIPE
@@ -56,24 +58,6 @@ def _run(prog: str, body: Callable[[], int | None]) -> int:
         return EXIT_BROKEN_PIPE
 
 
-def _number(kind: type, minimum: float, inclusive: bool, maximum: float = 1e9) -> Callable[[str], float]:
-    """An argparse type: a finite ``kind`` (int or float) >= or > ``minimum`` and <= ``maximum``
-    (by default 1e9: past it every setting of this toolkit is a typo, and some overflow)."""
-    word = "a whole number" if kind is int else "a number"
-    bound = f"{'>=' if inclusive else '>'} {minimum:g} and <= {maximum:g}"
-
-    def parse(text: str):
-        try:
-            v = kind(text)
-        except (ValueError, OverflowError):
-            raise argparse.ArgumentTypeError(f"expected {word}, got {text!r:.40}") from None
-        if not (v == v and abs(v) != float("inf")) or v < minimum or (v == minimum and not inclusive) or v > maximum:
-            raise argparse.ArgumentTypeError(f"expected a finite number {bound}, got {text:.40}")
-        return v
-
-    return parse
-
-
 def _out_path(text: str) -> Path:
     """An argparse type for an output path: not empty (``Path("")`` would be the working directory)."""
     if not text.strip():
@@ -81,20 +65,13 @@ def _out_path(text: str) -> Path:
     return Path(text)
 
 
-_positive_int = _number(int, 1, inclusive=True)
-_nonneg_int = _number(int, 0, inclusive=True)
-_positive_float = _number(float, 0, inclusive=False)
-_nonneg_float = _number(float, 0, inclusive=True)
-_seconds = _number(float, 0, inclusive=False, maximum=86_400)  # an episode: up to a day
-
-
 def _joint_gains(minimum: float, inclusive: bool) -> Callable[[str], "float | tuple[float, ...]"]:
     """An argparse type for a PD gain: one number for every joint, three (hip, thigh, calf: the
     same on every leg) or twelve (the schema's joint order FR, FL, RR, RL; hip, thigh, calf)."""
-    number = _number(float, minimum, inclusive)
+    parse_one = number(float, minimum, inclusive)
 
     def parse(text: str):
-        values = [number(t.strip()) for t in text.split(",")]
+        values = [parse_one(t.strip()) for t in text.split(",")]
         if len(values) == 1:
             return values[0]
         if len(values) == 3:
@@ -131,11 +108,6 @@ def _check_device(device: str) -> None:
         raise UserError(f"--device {device}: torch sees no CUDA GPU on this machine; use --device cpu")
 
 
-def _given(args: argparse.Namespace, parser: argparse.ArgumentParser) -> set[str]:
-    """The options the user set to something other than their default."""
-    return {k for k, v in vars(args).items() if v != parser.get_default(k)}
-
-
 _GAINS_HELP = "; one number for every joint, or hip,thigh,calf (every leg), or 12 in the order FR, FL, RR, RL"
 
 
@@ -144,7 +116,7 @@ def _add_ray_arguments(p: argparse.ArgumentParser, what: str) -> None:
     p.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
                    help=f"run {what} on Ray: alone, a local Ray instance (this machine's CPUs or --ray-cpus); "
                    "ADDRESS (auto, or HOST:PORT from `ray start --head`) joins a cluster; needs pip install -e '.[ray]'")
-    p.add_argument("--ray-cpus", type=_positive_int, default=None, metavar="N",
+    p.add_argument("--ray-cpus", type=positive_int, default=None, metavar="N",
                    help="--ray without ADDRESS: CPUs of the local Ray instance (default: all of this machine's)")
 
 
@@ -180,9 +152,42 @@ def _ray_executor(args: argparse.Namespace, prog: str) -> Iterator[None]:
 
 
 # ----------------------------------------------------------------------------- acn-collect
-def collect_parser() -> argparse.ArgumentParser:
-    from acn.sim.backends import ACTION_MODES, BACKENDS
+def _sim_flags() -> dict[str, Flag]:
+    """SimConfig's control settings on the command line (``acn-collect``)."""
+    from acn.sim.backends import ACTION_MODES
+
+    return {"action_mode": Flag("position: joint targets, PD at the physics rate; torque: joint torques",
+                                choices=ACTION_MODES),
+            "kp": Flag("PD stiffness, N m/rad" + _GAINS_HELP, _joint_gains(0, False)),
+            "kd": Flag("PD damping, N m s/rad" + _GAINS_HELP, _joint_gains(0, False)),
+            "torque_limit": Flag("N m, every joint", positive_float)}
+
+
+def _collect_defaults():
+    """acn-collect's defaults: CollectConfig's, recording the source alone unless --target is given."""
+    from dataclasses import replace
+
+    from acn.sim.collector import CollectConfig
+
+    return replace(CollectConfig(), target=None)
+
+
+def _collect_flags() -> dict[str, Flag]:
+    """CollectConfig's fields on the command line (``acn-collect``)."""
+    from acn.sim.backends import BACKENDS
     from acn.sim.policies import POLICIES
+
+    return {"source": Flag("simulator the policy acts on", choices=BACKENDS),
+            "target": Flag("second simulator driven with the same actions (omit to record the source alone)",
+                           choices=BACKENDS),
+            "policy": Flag("built-in policy", choices=list(POLICIES)),
+            "episodes": Flag("episodes to record", positive_int),
+            "seconds": Flag("episode length limit, s", seconds),
+            "seed": Flag("initial states and random policies", nonneg_int)}
+
+
+def collect_parser() -> argparse.ArgumentParser:
+    from acn.sim.backends import SimConfig
 
     p = _Parser(
         prog="acn-collect",
@@ -190,24 +195,14 @@ def collect_parser() -> argparse.ArgumentParser:
         "same initial state with the same actions) and write a LeRobot v3.0 dataset. Ctrl-C keeps the finished "
         "episodes as a dataset in a new --out; over an existing dataset (--overwrite) it leaves that dataset as it was.",
     )
-    p.add_argument("--source", default="pybullet", choices=BACKENDS, help="simulator the policy acts on")
-    p.add_argument("--target", default=None, choices=BACKENDS,
-                   help="second simulator driven with the same actions (omit to record the source alone)")
-    p.add_argument("--policy", default="trot", choices=list(POLICIES), help="built-in policy")
-    p.add_argument("--episodes", type=_positive_int, default=4, help="episodes to record")
-    p.add_argument("--seconds", type=_seconds, default=10.0, help="episode length limit, s")
-    p.add_argument("--seed", type=_nonneg_int, default=0, help="initial states and random policies")
+    add_flags(p, _collect_defaults(), _collect_flags())
     p.add_argument("--out", required=True, type=_out_path, help="dataset directory to create")
     p.add_argument("--overwrite", action="store_true", help="replace --out if it is a dataset this toolkit wrote (nothing else is ever replaced)")
-    p.add_argument("--workers", type=_positive_int, default=1, help="processes on this machine")
-    p.add_argument("--action-mode", default="position", choices=ACTION_MODES,
-                   help="position: joint targets, PD at the physics rate; torque: joint torques")
-    p.add_argument("--control-hz", type=_positive_int, default=50, help="control rate, Hz (one action per step)")
-    p.add_argument("--physics-hz", type=_positive_int, default=None,
+    p.add_argument("--workers", type=positive_int, default=1, help="processes on this machine")
+    p.add_argument("--control-hz", type=positive_int, default=50, help="control rate, Hz (one action per step)")
+    p.add_argument("--physics-hz", type=positive_int, default=None,
                    help="physics rate (default: the multiple of --control-hz nearest 1 kHz)")
-    p.add_argument("--kp", type=_joint_gains(0, False), default=60.0, help="PD stiffness, N m/rad" + _GAINS_HELP)
-    p.add_argument("--kd", type=_joint_gains(0, False), default=1.5, help="PD damping, N m s/rad" + _GAINS_HELP)
-    p.add_argument("--torque-limit", type=_positive_float, default=33.5, help="N m, every joint")
+    add_flags(p, SimConfig(), _sim_flags())
     p.add_argument("--corrector", type=Path, default=None,
                    help="frozen corrector directory (acn-fit output) applied to the target's actions")
     p.add_argument("--hidden-effect", action="append", default=[], metavar="NAME[:param=value,...]|random",
@@ -215,7 +210,7 @@ def collect_parser() -> argparse.ArgumentParser:
                    "(random: a random catalogue effect); the answer goes to OUT.answer.json, never into the "
                    "dataset; repeat for several effects")
     _add_ray_arguments(p, "the episodes (one Ray task each, written in episode order)")
-    p.add_argument("--shards", type=_positive_int, default=1, metavar="K",
+    p.add_argument("--shards", type=positive_int, default=1, metavar="K",
                    help="with --ray: K writers in parallel (contiguous episode ranges), merged into --out")
     return p
 
@@ -223,19 +218,17 @@ def collect_parser() -> argparse.ArgumentParser:
 def collect_config_from_args(args: argparse.Namespace):
     from acn.sim.backends import SimConfig
     from acn.sim.backends.base import physics_hz_for
-    from acn.sim.collector import CollectConfig
 
     physics_hz = physics_hz_for(args.control_hz, args.physics_hz)
     if args.corrector is not None:
         from acn.corrector.corrector import load_for_target
 
         load_for_target(args.corrector, [])  # the collected target is the simulator as is
-    sim = SimConfig(physics_dt=1.0 / physics_hz, substeps=physics_hz // args.control_hz,
-                    action_mode=args.action_mode, kp=args.kp, kd=args.kd, torque_limit=args.torque_limit)
-    return CollectConfig(source=args.source, target=args.target, policy=args.policy, episodes=args.episodes,
-                         seconds=args.seconds, seed=args.seed, sim=sim,
-                         corrector=str(args.corrector) if args.corrector else None,
-                         hidden_effects=_hidden_effects(args.hidden_effect, args.seed, sim))
+    sim = config_from_args(args, SimConfig(), _sim_flags(), physics_dt=1.0 / physics_hz,
+                           substeps=physics_hz // args.control_hz)
+    return config_from_args(args, _collect_defaults(), _collect_flags(), sim=sim,
+                            corrector=str(args.corrector) if args.corrector else None,
+                            hidden_effects=_hidden_effects(args.hidden_effect, args.seed, sim))
 
 
 def _hidden_effects(specs: list[str], seed: int, sim) -> list:
@@ -305,8 +298,59 @@ def collect_main(argv: list[str] | None = None) -> int:
 
 
 # ----------------------------------------------------------------------------- acn-fit
-def fit_parser() -> argparse.ArgumentParser:
+def _fit_flags() -> dict[str, Flag]:
+    """FitConfig's fields on the command line (``acn-fit``)."""
     from acn.corrector.acn import VARIANTS
+
+    return {
+        "variant": Flag("inverse: regress Gauss-Newton labels delta_a* from same-state re-simulations (default); "
+                        "paper: learned Jacobian (the paper's, degenerate); mujoco-jacobian: J from the target",
+                        choices=VARIANTS),
+        "epochs": Flag("default: 30 (paper), 60 (inverse)", positive_int),
+        "batch_size": Flag("default: 256 (paper), 64 (inverse)", positive_int),
+        "lr": Flag("Adam learning rate", positive_float),
+        "lr_schedule": Flag("default: constant (paper), cosine (inverse)", choices=("constant", "cosine")),
+        "lambda_l1": Flag("weight of |delta_a|_1", nonneg_float),
+        "hidden": Flag("default: 256 (paper), 512 (inverse)", positive_int),
+        "layers": Flag("hidden layers per network", positive_int),
+        "filter_percentile": Flag("keep rows whose source-target gap is below this percentile (100: keep all; "
+                                  "default: 70 for paper and mujoco-jacobian, 100 for inverse)", positive_float),
+        "val_fraction": Flag("of episodes", positive_float),
+        "seed": Flag("initialisation, batches and the validation split", nonneg_int),
+        "device": Flag("cpu or cuda"),
+        "precision": Flag("matmul precision in training (auto: bf16 where the hardware has it natively)",
+                          choices=("auto", "bf16", "fp32")),
+        "jacobian_eps": Flag("finite-difference step on actions (mujoco-jacobian)", positive_float),
+        "eval_episodes": Flag("closed-loop evaluation episodes from held-out initial states (0: skip)", nonneg_int),
+        "eval_seconds": Flag("closed-loop evaluation episode length, s", seconds),
+        "oracles": Flag("run the same-state and tracking oracles beside the corrector in the closed-loop evaluation"),
+        "label_iterations": Flag("inverse: Gauss-Newton steps with a finite-difference Jacobian per label", positive_int),
+        "label_broyden": Flag("inverse: further quasi-Newton (Broyden) steps per label", nonneg_int),
+        "label_damping": Flag("inverse: Levenberg-Marquardt ridge, relative to the mean diagonal of J^T J", nonneg_float),
+        "jacobian_weight": Flag("inverse: add this times the paper's fit term under the target's true J", nonneg_float),
+        "label_state_weight": Flag("inverse: add this times the label error seen through the target's true J",
+                                   nonneg_float),
+        "oracle_iterations": Flag("Gauss-Newton steps of the oracles (closed loop and the held-out one-step reference)",
+                                  positive_int),
+        "rounds": Flag("inverse: closed-loop rounds (collect with the corrector, label the visited states, refit; "
+                       "default 4)", nonneg_int),
+        "round_episodes": Flag("inverse: episodes collected per round", positive_int),
+        "round_seconds": Flag("inverse: length of a round's episodes, s", seconds),
+        "round_epochs": Flag("inverse: epochs of each round's refit", positive_int),
+        "label_fd_eps": Flag("inverse: finite-difference step on actions in the label solve (action units)",
+                             positive_float),
+        "sensor_inputs": Flag("F also reads the contact and IMU readings (default: on for paper and mujoco-jacobian)"),
+        "threads": Flag("re-simulation threads", positive_int),
+        "train_threads": Flag("torch threads in training on a CPU (default 0: whichever count is fastest, timed every "
+                              "few seconds while training; more threads are faster only on an otherwise idle machine)",
+                              nonneg_int),
+        "cuda_graph": Flag("with --device cuda: replay each full-batch training step as one CUDA graph (default on)"),
+        "calibrate": Flag("scale F by 0, 0.25, ... 1, whichever leaves the least one-step error on half of the held-out "
+                          "episodes (default: on for inverse)"),
+    }
+
+
+def fit_parser() -> argparse.ArgumentParser:
     from acn.corrector.fit import FitConfig
 
     d = FitConfig()
@@ -318,63 +362,7 @@ def fit_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", default=None, metavar="MODEL.json",
                    help="fit on top of this model of the target simulator (e.g. acn-diagnose --save-model's): its "
                    "effects are written into the target, and the network learns what they leave (inverse only)")
-    p.add_argument("--variant", default=d.variant, choices=VARIANTS,
-                   help="inverse: regress Gauss-Newton labels delta_a* from same-state re-simulations (default); "
-                   "paper: learned Jacobian (the paper's, degenerate); mujoco-jacobian: J from the target")
-    p.add_argument("--epochs", type=_positive_int, default=d.epochs, help="default: 30 (paper), 60 (inverse)")
-    p.add_argument("--batch-size", type=_positive_int, default=d.batch_size, help="default: 256 (paper), 64 (inverse)")
-    p.add_argument("--lr", type=_positive_float, default=d.lr, help="Adam learning rate")
-    p.add_argument("--lr-schedule", default=d.lr_schedule, choices=("constant", "cosine"),
-                   help="default: constant (paper), cosine (inverse)")
-    p.add_argument("--lambda-l1", type=_nonneg_float, default=d.lambda_l1, help="weight of |delta_a|_1")
-    p.add_argument("--hidden", type=_positive_int, default=d.hidden, help="default: 256 (paper), 512 (inverse)")
-    p.add_argument("--layers", type=_positive_int, default=d.layers, help="hidden layers per network")
-    p.add_argument("--filter-percentile", type=_positive_float, default=d.filter_percentile,
-                   help="keep rows whose source-target gap is below this percentile (100: keep all; "
-                   "default: 70 for paper and mujoco-jacobian, 100 for inverse)")
-    p.add_argument("--val-fraction", type=_positive_float, default=d.val_fraction, help="of episodes")
-    p.add_argument("--seed", type=_nonneg_int, default=d.seed, help="initialisation, batches and the validation split")
-    p.add_argument("--device", default=d.device, help="cpu or cuda")
-    p.add_argument("--precision", default=d.precision, choices=("auto", "bf16", "fp32"),
-                   help="matmul precision in training (auto: bf16 where the hardware has it natively)")
-    p.add_argument("--jacobian-eps", type=_positive_float, default=d.jacobian_eps,
-                   help="finite-difference step on actions (mujoco-jacobian)")
-    p.add_argument("--eval-episodes", type=_nonneg_int, default=d.eval_episodes,
-                   help="closed-loop evaluation episodes from held-out initial states (0: skip)")
-    p.add_argument("--eval-seconds", type=_seconds, default=d.eval_seconds, help="closed-loop evaluation episode length, s")
-    p.add_argument("--no-oracles", action="store_true",
-                   help="skip the same-state and tracking oracles in the closed-loop evaluation")
-    p.add_argument("--label-iterations", type=_positive_int, default=d.label_iterations,
-                   help="inverse: Gauss-Newton steps with a finite-difference Jacobian per label")
-    p.add_argument("--label-broyden", type=_nonneg_int, default=d.label_broyden,
-                   help="inverse: further quasi-Newton (Broyden) steps per label")
-    p.add_argument("--label-damping", type=_nonneg_float, default=d.label_damping,
-                   help="inverse: Levenberg-Marquardt ridge, relative to the mean diagonal of J^T J")
-    p.add_argument("--jacobian-weight", type=_nonneg_float, default=d.jacobian_weight,
-                   help="inverse: add this times the paper's fit term under the target's true J")
-    p.add_argument("--label-state-weight", type=_nonneg_float, default=d.label_state_weight,
-                   help="inverse: add this times the label error seen through the target's true J")
-    p.add_argument("--oracle-iterations", type=_positive_int, default=d.oracle_iterations,
-                   help="Gauss-Newton steps of the oracles (closed loop and the held-out one-step reference)")
-    p.add_argument("--rounds", type=_nonneg_int, default=d.rounds,
-                   help="inverse: closed-loop rounds (collect with the corrector, label the visited states, refit; "
-                   "default 4)")
-    p.add_argument("--round-episodes", type=_positive_int, default=d.round_episodes, help="inverse: episodes collected per round")
-    p.add_argument("--round-seconds", type=_seconds, default=d.round_seconds, help="inverse: length of a round's episodes, s")
-    p.add_argument("--round-epochs", type=_positive_int, default=d.round_epochs, help="inverse: epochs of each round's refit")
-    p.add_argument("--label-fd-eps", type=_positive_float, default=d.label_fd_eps,
-                   help="inverse: finite-difference step on actions in the label solve (action units)")
-    p.add_argument("--sensor-inputs", action=argparse.BooleanOptionalAction, default=d.sensor_inputs,
-                   help="F also reads the contact and IMU readings (default: on for paper and mujoco-jacobian)")
-    p.add_argument("--threads", type=_positive_int, default=d.threads, help="re-simulation threads")
-    p.add_argument("--train-threads", type=_nonneg_int, default=d.train_threads,
-                   help="torch threads in training on a CPU (default 0: whichever count is fastest, timed every "
-                   "few seconds while training; more threads are faster only on an otherwise idle machine)")
-    p.add_argument("--cuda-graph", action=argparse.BooleanOptionalAction, default=d.cuda_graph,
-                   help="with --device cuda: replay each full-batch training step as one CUDA graph (default on)")
-    p.add_argument("--calibrate", action=argparse.BooleanOptionalAction, default=d.calibrate,
-                   help="scale F by 0, 0.25, ... 1, whichever leaves the least one-step error on half of the held-out "
-                   "episodes (default: on for inverse)")
+    add_flags(p, d, _fit_flags())
     _add_ray_arguments(p, "the re-simulation batches (Jacobians, labels; rows in chunks)")
     return p
 
@@ -390,19 +378,7 @@ def fit_main(argv: list[str] | None = None) -> int:
         for d in args.datasets:
             check_input_dir(d, "dataset directory")
         _check_device(args.device)
-        cfg = FitConfig(variant=args.variant, hidden=args.hidden, layers=args.layers, lambda_l1=args.lambda_l1,
-                        lr=args.lr, batch_size=args.batch_size, epochs=args.epochs,
-                        filter_percentile=args.filter_percentile, val_fraction=args.val_fraction, seed=args.seed,
-                        device=args.device, precision=args.precision, jacobian_eps=args.jacobian_eps, eval_episodes=args.eval_episodes,
-                        eval_seconds=args.eval_seconds, oracles=not args.no_oracles,
-                        label_iterations=args.label_iterations, label_broyden=args.label_broyden,
-                        label_damping=args.label_damping, jacobian_weight=args.jacobian_weight, rounds=args.rounds,
-                        label_state_weight=args.label_state_weight, oracle_iterations=args.oracle_iterations,
-                        lr_schedule=args.lr_schedule,
-                        round_episodes=args.round_episodes, round_seconds=args.round_seconds,
-                        round_epochs=args.round_epochs, threads=args.threads, calibrate=args.calibrate,
-                        label_fd_eps=args.label_fd_eps, sensor_inputs=args.sensor_inputs,
-                        train_threads=args.train_threads, cuda_graph=args.cuda_graph)
+        cfg = config_from_args(args, FitConfig(), _fit_flags())
         target = None
         if args.model is not None:
             from acn.sim.effects import Model
@@ -452,8 +428,67 @@ def _print_fit_summary(m: dict, path: Path, physics: str | None) -> None:
 
 
 # ----------------------------------------------------------------------------- acn-ppo
-def ppo_parser() -> argparse.ArgumentParser:
+def _ppo_flags() -> dict[str, Flag]:
+    """PPOConfig's fields on the command line (``acn-ppo``), every one of them."""
     from acn.corrector.acn import VARIANTS
+    from acn.sim.backends import ACTION_MODES
+    from acn.sim.policies import POLICIES
+
+    return {
+        # run
+        "timesteps": Flag("train for this many PyBullet control steps in all; fewer than one rollout (n_steps x envs, "
+                          "2048 by default) is a quick trial: those steps, a 2-epoch refit on two 2 s paired episodes "
+                          "and a final evaluation of 2 episodes of 2 s (options you set are kept)", positive_int),
+        "seed": Flag("PPO, environments and evaluation starts", nonneg_int),
+        "n_envs": Flag("PyBullet environment processes", positive_int, option="--envs"),
+        "torch_threads": Flag("torch threads of PPO's own process (the simulators run in the others)", positive_int),
+        "checkpoint_every": Flag("timesteps between resumable checkpoints", positive_int),
+        # task
+        "seconds": Flag("episode time limit, s (--eval: default the policy's own)", seconds),
+        "base_policy": Flag("built-in gait the policy is a residual on", choices=list(POLICIES)),
+        "residual_scale": Flag("rad of joint target per unit of the policy's action", positive_float),
+        "train_reward_weights": Flag("PPO's weights of the paper's four reward terms (velocity, torque, height, "
+                                     "joint speed); the evaluations report the paper's", metavar="W1,W2,W3,W4"),
+        "alive_bonus": Flag("training reward per step that does not end in a fall", nonneg_float),
+        "action_mode": Flag("what the robot's actions are", choices=ACTION_MODES),
+        "control_hz": Flag("control rate, Hz", positive_int),
+        "physics_hz": Flag("physics rate, Hz", positive_int),
+        "kp": Flag("PD stiffness, N m/rad", positive_float),
+        "kd": Flag("PD damping, N m s/rad", positive_float),
+        "torque_limit": Flag("N m, every joint", positive_float),
+        # PPO (stable-baselines3)
+        "learning_rate": Flag("Adam learning rate", positive_float),
+        "n_steps": Flag("steps per environment per rollout", positive_int),
+        "batch_size": Flag("minibatch size", positive_int),
+        "n_epochs": Flag("passes over each rollout", positive_int),
+        "gamma": Flag("discount", positive_float),
+        "gae_lambda": Flag("GAE lambda", nonneg_float),
+        "clip_range": Flag("PPO's policy clip", positive_float),
+        "ent_coef": Flag("entropy bonus weight", nonneg_float),
+        "vf_coef": Flag("value loss weight", nonneg_float),
+        "max_grad_norm": Flag("gradient clip", positive_float),
+        "target_kl": Flag("stop a rollout's epochs at this KL (0: never)", nonneg_float),
+        "hidden": Flag("hidden layer widths of the actor and of the critic", metavar="W,W"),
+        "log_std_init": Flag("initial log standard deviation of the policy's actions (exploration)"),
+        "norm_reward": Flag("normalise PPO's rewards by their running scale"),
+        "clip_obs": Flag("clip normalised observations at this many standard deviations", positive_float),
+        # Algorithm 2
+        "refit_every": Flag("episodes between corrector refits; 0: never refit", nonneg_int),
+        "eval_every": Flag("episodes between MuJoCo evaluations; 0: only the final one", nonneg_int),
+        "eval_episodes": Flag("episodes per evaluation in training", nonneg_int),
+        "final_eval_episodes": Flag("episodes of the final evaluation, per simulator", positive_int),
+        "eval_seconds": Flag("evaluation episode length, s", seconds),
+        "refit_episodes": Flag("paired PyBullet -> MuJoCo episodes collected per refit", positive_int),
+        "refit_seconds": Flag("length of a refit's paired episodes, s", seconds),
+        "refit_window": Flag("a refit fits on the latest this-many paired datasets", positive_int),
+        "corrector_variant": Flag("acn-fit variant for refits", option="--variant", choices=VARIANTS),
+        "fit_epochs": Flag("epochs of each refit", positive_int),
+        "oracle_episodes": Flag("episodes of the same-state oracle bound in the final evaluation (slow; "
+                                "--eval: 0 unless given)", nonneg_int),
+    }
+
+
+def ppo_parser() -> argparse.ArgumentParser:
     from acn.rl.ppo import PPOConfig
 
     d = PPOConfig()
@@ -462,28 +497,16 @@ def ppo_parser() -> argparse.ArgumentParser:
                 "which is applied in the TARGET (MuJoCo) only; every --refit-every episodes F is refitted on paired "
                 "data of the current policy (the paper's Algorithm 2). Or, with --eval, reload and evaluate.")
     mode = p.add_mutually_exclusive_group(required=True)
-    mode.add_argument("--timesteps", type=_positive_int, help="train for this many PyBullet control steps in all; fewer than one rollout (n_steps x envs, "
-                      "2048 by default) is a quick trial: those steps, a 2-epoch refit on two 2 s paired episodes and a "
-                      "final evaluation of 2 episodes of 2 s (options you set are kept)")
+    flags = _ppo_flags()
+    add_flags(mode, d, {"timesteps": flags.pop("timesteps")})  # training, or --eval
     mode.add_argument("--eval", type=Path, metavar="POLICY", help="evaluate a saved policy directory (DIR/policy)")
     p.add_argument("--out", type=_out_path, help="run directory to create (training); --eval: a JSON file to write")
     p.add_argument("--corrector", type=Path, default=None,
                    help="frozen corrector directory (acn-fit output); training: F until the first refit")
-    p.add_argument("--refit-every", type=_nonneg_int, default=d.refit_every, help="episodes; 0: never refit")
-    p.add_argument("--eval-every", type=_nonneg_int, default=d.eval_every, help="episodes; 0: only at the end")
-    p.add_argument("--eval-episodes", type=_nonneg_int, default=d.eval_episodes, help="per evaluation in training")
-    p.add_argument("--final-eval-episodes", type=_positive_int, default=d.final_eval_episodes, help="episodes of the final evaluation, per simulator")
-    p.add_argument("--variant", default=d.corrector_variant, choices=VARIANTS, help="acn-fit variant for refits")
-    p.add_argument("--envs", type=_positive_int, default=d.n_envs, help="PyBullet environment processes")
-    p.add_argument("--seed", type=_nonneg_int, default=d.seed, help="PPO, environments and evaluation starts")
-    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                   help="any other PPOConfig field, e.g. --set n_steps=512 --set hidden=64,64")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its checkpoint")
     p.add_argument("--overwrite", action="store_true", help="replace --out if it is a PPO run this toolkit wrote, once the new run is complete")
-    p.add_argument("--episodes", type=_positive_int, default=20, help="--eval: episodes per simulator")
-    p.add_argument("--seconds", type=_seconds, default=None, help="--eval: episode limit (default: the policy's)")
-    p.add_argument("--oracle-episodes", type=_nonneg_int, default=0,
-                   help="--eval: also the same-state oracle bound on this many episodes (optional, slow)")
+    p.add_argument("--episodes", type=positive_int, default=20, help="--eval: episodes per simulator")
+    add_flags(p, d, flags)
     return p
 
 
@@ -493,11 +516,9 @@ def ppo_main(argv: list[str] | None = None) -> int:
     def body() -> int:
         if args.eval is not None:
             return _ppo_eval(args)
-        from dataclasses import replace
-
         from tqdm import tqdm
 
-        from acn.rl.ppo import PPO_RUN, PPOConfig, Trainer, format_table, parse_overrides
+        from acn.rl.ppo import PPO_RUN, PPOConfig, Trainer, format_table
 
         if args.out is None:
             raise UserError("--timesteps needs --out DIR")
@@ -506,12 +527,9 @@ def ppo_main(argv: list[str] | None = None) -> int:
         elif args.overwrite:
             raise UserError("--resume continues the run in --out; --overwrite would replace it: give one")
         check_input_dir(args.corrector, "corrector directory")
-        cfg = replace(PPOConfig(), timesteps=args.timesteps, refit_every=args.refit_every, eval_every=args.eval_every,
-                      eval_episodes=args.eval_episodes, final_eval_episodes=args.final_eval_episodes,
-                      corrector_variant=args.variant, n_envs=args.envs, seed=args.seed)
-        cfg = parse_overrides(cfg, args.set)
-        cfg = cfg.sized_for_run(keep=_given(args, ppo_parser()) | {item.partition("=")[0].strip().replace("-", "_")
-                                                                  for item in args.set})
+        flags = _ppo_flags()
+        cfg = config_from_args(args, PPOConfig(), flags)
+        cfg = cfg.sized_for_run(keep=given_fields(args, ppo_parser(), flags))
         trainer = Trainer(cfg, args.out, corrector_dir=args.corrector, resume=args.resume, overwrite=args.overwrite,
                           log=lambda line: tqdm.write(line, file=sys.stderr))
         m = trainer.run()
@@ -533,14 +551,19 @@ def ppo_main(argv: list[str] | None = None) -> int:
 
 
 def _ppo_eval(args: argparse.Namespace) -> int:
-    if args.resume or args.set:
-        raise UserError("--eval takes --corrector, --episodes, --seconds, --seed, --oracle-episodes and --out only")
+    settings = given(args, ppo_parser()) - {"eval", "corrector", "episodes", "seconds", "seed", "oracle_episodes", "out"}
+    if settings:
+        raise UserError(f"--eval takes --corrector, --episodes, --seconds, --seed, --oracle-episodes and --out only, "
+                        f"not --{sorted(settings)[0].replace('_', '-')}")
+    chosen = given(args, ppo_parser())
+    limit = args.seconds if "seconds" in chosen else None
+    oracle_episodes = args.oracle_episodes if "oracle_episodes" in chosen else 0
     check_input_dir(args.eval, "policy directory")
     check_input_dir(args.corrector, "corrector directory")
     from acn.rl.ppo import EVAL_FORMAT, PPO_EVAL, evaluate_saved, format_table, write_json
 
     check_output(args.out, PPO_EVAL, inputs=[args.eval, args.corrector])
-    ev = evaluate_saved(args.eval, args.corrector, args.episodes, args.seconds, args.seed, args.oracle_episodes)
+    ev = evaluate_saved(args.eval, args.corrector, args.episodes, limit, args.seed, oracle_episodes)
     print(format_table(ev))
     if args.out is not None:
         write_json(args.out, {"format": EVAL_FORMAT, **ev})
@@ -549,20 +572,29 @@ def _ppo_eval(args: argparse.Namespace) -> int:
 
 
 # ----------------------------------------------------------------------------- acn-view
+def _view_flags() -> dict[str, Flag]:
+    """ViewConfig's fields on the command line (``acn-view``)."""
+    return {
+        "dataset": Flag("dataset directory written by acn-collect (paired or not)", option="dataset"),
+        "episodes": Flag("episodes to show (default: all)", metavar="0,3,..."),
+        "corrector": Flag("frozen corrector directory (acn-fit output): also show the target re-simulated with it"),
+        "model": Flag("mujoco, pybullet or a model JSON (acn-diagnose --save-model): measured against the model's "
+                      "one-step prediction, residuals per joint, the error as the model's effects are added",
+                      metavar="MODEL.json"),
+        "diagnosis": Flag("acn-diagnose --json result: its verdict, ranking and where-summary as text (with --model)",
+                          metavar="FILE.json"),
+        "save": Flag("write a .rrd instead of opening a viewer", _out_path, metavar="OUT.rrd"),
+        "mesh_cell": Flag("m, the grid the A1's meshes are simplified on (0: the original meshes)", nonneg_float),
+    }
+
+
 def view_parser() -> argparse.ArgumentParser:
+    from acn.viz.view import ViewConfig
+
     p = _Parser(prog="acn-view", description="Show a dataset in the Rerun viewer: the A1 in 3D per trajectory, "
                 "joint angles, divergence per channel group and stance/swing, one tab per episode. Opens the "
                 "viewer when there is a display and no --save; otherwise writes a .rrd.")
-    p.add_argument("dataset", type=Path, help="dataset directory written by acn-collect (paired or not)")
-    p.add_argument("--episodes", default=None, metavar="0,3,...", help="episodes to show (default: all)")
-    p.add_argument("--corrector", type=Path, default=None,
-                   help="frozen corrector directory (acn-fit output): also show the target re-simulated with it")
-    p.add_argument("--model", default=None, metavar="MODEL.json",
-                   help="mujoco, pybullet or a model JSON (acn-diagnose --save-model): measured against the model's "
-                   "one-step prediction, residuals per joint, the error as the model's effects are added")
-    p.add_argument("--diagnosis", type=Path, default=None, metavar="FILE.json",
-                   help="acn-diagnose --json result: its verdict, ranking and where-summary as text (with --model)")
-    p.add_argument("--save", type=_out_path, default=None, metavar="OUT.rrd", help="write a .rrd instead of opening a viewer")
+    add_flags(p, ViewConfig, _view_flags())
     return p
 
 
@@ -575,8 +607,7 @@ def view_main(argv: list[str] | None = None) -> int:
         check_input_dir(args.dataset, "dataset directory")
         check_output(args.save, RECORDING, flag="--save", inputs=[args.dataset, args.corrector, args.model,
                                                                  args.diagnosis])
-        path = view(ViewConfig(dataset=args.dataset, episodes=args.episodes, corrector=args.corrector,
-                               model=args.model, diagnosis=args.diagnosis, save=args.save))
+        path = view(config_from_args(args, ViewConfig, _view_flags()))
         if path is not None:
             print(f"wrote {path}; open it with:")
             print(f"rerun {path}")
@@ -586,43 +617,50 @@ def view_main(argv: list[str] | None = None) -> int:
 
 
 # ----------------------------------------------------------------------------- acn-import
-def import_parser() -> argparse.ArgumentParser:
+def _import_flags() -> dict[str, Flag]:
+    """ImportConfig's fields on the command line (``acn-import``)."""
     from acn.sim.backends import ACTION_MODES, IMU_ACC_KINDS
-    from acn.sim.state import FOOT_NAMES
+
+    return {
+        "control_hz": Flag("control rate the log was recorded at", positive_int),
+        "kp": Flag("joint PD stiffness the robot ran with, N m/rad" + _GAINS_HELP + "; a log with action_kp.* columns "
+                   "(a hybrid command, with action_kd.*, action_vel.*, action_torque.*) sends its own per row",
+                   _joint_gains(0, True)),
+        "kd": Flag("joint PD damping, N m s/rad" + _GAINS_HELP, _joint_gains(0, True)),
+        "torque_limit": Flag("N m, every joint", positive_float),
+        "action_mode": Flag("what the log's actions are: joint targets (position) or torques", choices=ACTION_MODES),
+        "physics_hz": Flag("physics rate a model simulates it at (default: the multiple of --control-hz nearest 1 kHz)",
+                           positive_int),
+        "dt_tolerance": Flag("a time step may differ from the control period by this fraction before the episode is "
+                             "split", positive_float),
+        "linvel_frame": Flag("the frame the log's base_linvel_* are in (world: rotated into the body frame the schema "
+                             "uses)", choices=("body", "world")),
+        "angvel_frame": Flag("the same for base_angvel_*", choices=("body", "world")),
+        "leg_order": Flag("the order of the legs in the log's columns, if not the schema's FR,FL,RR,RL "
+                          "(legged_gym and Isaac Gym: FL,FR,RL,RR)", _leg_order, metavar="FL,FR,RL,RR"),
+        "shift_actions": Flag("pair each state with the command this many rows later in its episode (1: the log writes "
+                              "the last action sent with the new observation, as the action_row check finds)",
+                              number(int, -1e9, inclusive=True), metavar="ROWS"),
+        "imu_acc": Flag("what the logged accelerometer reads: the mean specific force over the control step before the "
+                        "row (mean, the schema's) or at the row's instant (instant: a sensor sampled then, as MuJoCo's "
+                        "accelerometer); default: not stated, acn-diagnose judges it from the log",
+                        choices=IMU_ACC_KINDS),
+    }
+
+
+def import_parser() -> argparse.ArgumentParser:
+    from acn.measurements.importer import ImportConfig
 
     p = _Parser(prog="acn-import", description="Turn a robot log (CSV, Parquet, JSON lines, HDF5 or .npz, one row per control "
                 "step) into a measurement dataset (LeRobot v3.0, the schema of acn-collect) that acn-diagnose reads.")
     p.add_argument("log", type=Path, nargs="+", help="the log file (.csv, .parquet, .jsonl, .h5 or .npz); several (one per run, "
                    "the same columns): read one after the other, each file's episodes apart")
     p.add_argument("--out", required=True, type=_out_path, help="dataset directory to create")
-    p.add_argument("--control-hz", required=True, type=_positive_int, help="control rate the log was recorded at")
-    p.add_argument("--kp", required=True, type=_joint_gains(0, True),
-                   help="joint PD stiffness the robot ran with, N m/rad" + _GAINS_HELP + "; a log with action_kp.* "
-                   "columns (a hybrid command, with action_kd.*, action_vel.*, action_torque.*) sends its own per row")
-    p.add_argument("--kd", required=True, type=_joint_gains(0, True), help="joint PD damping, N m s/rad" + _GAINS_HELP)
-    p.add_argument("--torque-limit", required=True, type=_positive_float, help="N m, every joint")
-    p.add_argument("--action-mode", default="position", choices=ACTION_MODES, help="what the log's actions are: joint targets (position) or torques")
-    p.add_argument("--physics-hz", type=_positive_int, default=None,
-                   help="physics rate a model simulates it at (default: the multiple of --control-hz nearest 1 kHz)")
+    add_flags(p, ImportConfig, _import_flags())
     p.add_argument("--map", type=Path, default=None, dest="map_file", metavar="MAP.json",
                    help='rename and scale columns: {"FR_hip_pos": "q0", "FR_thigh_pos": {"column": "q1_deg", '
                    '"scale": 0.0174533, "offset": 0.0}}; foot forces as contact flags: '
                    '{"FR_contact": {"column": "force0", "threshold": 20}}')
-    p.add_argument("--dt-tolerance", type=_positive_float, default=0.1,
-                   help="a time step may differ from the control period by this fraction before the episode is split")
-    p.add_argument("--linvel-frame", choices=("body", "world"), default="body",
-                   help="the frame the log's base_linvel_* are in (world: rotated into the body frame the schema uses)")
-    p.add_argument("--angvel-frame", choices=("body", "world"), default="body", help="the same for base_angvel_*")
-    p.add_argument("--leg-order", type=_leg_order, default=FOOT_NAMES, metavar="FL,FR,RL,RR",
-                   help="the order of the legs in the log's columns, if not the schema's FR,FL,RR,RL "
-                   "(legged_gym and Isaac Gym: FL,FR,RL,RR)")
-    p.add_argument("--shift-actions", type=int, default=0, metavar="ROWS",
-                   help="pair each state with the command this many rows later in its episode (1: the log writes the "
-                   "last action sent with the new observation, as the action_row check finds)")
-    p.add_argument("--imu-acc", choices=IMU_ACC_KINDS, default=None,
-                   help="what the logged accelerometer reads: the mean specific force over the control step before "
-                   "the row (mean, the schema's) or at the row's instant (instant: a sensor sampled then, as "
-                   "MuJoCo's accelerometer); default: not stated, acn-diagnose judges it from the log")
     p.add_argument("--overwrite", action="store_true", help="replace --out if it is a dataset this toolkit wrote (nothing else is ever replaced)")
     return p
 
@@ -649,10 +687,7 @@ def import_main(argv: list[str] | None = None) -> int:
         from acn.sim.backends.base import PHYSICS_HZ, physics_hz_for
 
         check_output(args.out, DATASET, overwrite=args.overwrite, inputs=[*args.log, args.map_file])
-        cfg = ImportConfig(control_hz=args.control_hz, kp=args.kp, kd=args.kd, torque_limit=args.torque_limit,
-                           action_mode=args.action_mode, physics_hz=args.physics_hz, dt_tolerance=args.dt_tolerance,
-                           linvel_frame=args.linvel_frame, angvel_frame=args.angvel_frame, leg_order=args.leg_order,
-                           shift_actions=args.shift_actions, imu_acc=args.imu_acc)
+        cfg = config_from_args(args, ImportConfig, _import_flags())
         path, r = import_log(args.log, args.out, cfg, args.map_file, overwrite=args.overwrite)
         print(f"read {r.rows} rows: {r.transitions} transitions in {r.episodes} episode(s); cut {r.cut_nonfinite} "
               f"row(s) with non-finite values, split at {r.time_breaks} wrong time step(s), dropped "
@@ -706,10 +741,36 @@ def import_main(argv: list[str] | None = None) -> int:
 
 
 # ----------------------------------------------------------------------------- acn-diagnose
+def _step_seconds(text: str) -> float | None:
+    """``--step-seconds``: seconds >= 0, where 0 means one control step (None)."""
+    value = nonneg_float(text)
+    return value if value > 0 else None
+
+
+def _diagnose_flags() -> dict[str, Flag]:
+    """DiagnoseConfig's fields on the command line (``acn-diagnose``)."""
+    from acn.diagnosis.fitting import GRANULARITIES
+
+    return {
+        "auto_alternatives": Flag("with --auto: also start from the next N candidates and keep a chain that predicts "
+                                  "clearly better (one effect can stand in for two)", nonneg_int, metavar="N"),
+        "finest": Flag("the finest granularity an added per-joint effect may get: one value for every joint, one per "
+                       "joint type, leg or joint (a finer one is kept where it predicts significantly better; coarser "
+                       "is quicker)", choices=GRANULARITIES),
+        "horizons": Flag("open-loop horizons, in diagnosis steps (--step-seconds each)",
+                         lambda text: tuple(sorted(set(comma_list(positive_int)(text)))), metavar="1,5,25"),
+        "step_seconds": Flag("one diagnosis step, s of control steps (rounded, at least one; 0: one control step): at "
+                             "high control rates one control step moves the robot less than its sensor noise",
+                             _step_seconds),
+        "candidates": Flag("comma-separated candidates (default: the whole catalogue)", comma_list(str),
+                           option="--effects", metavar="EFFECT,..."),
+        "seed": Flag("the held-out split and random starts", nonneg_int),
+    }
+
+
 def diagnose_parser() -> argparse.ArgumentParser:
     from acn.diagnosis import DiagnoseConfig
 
-    d = DiagnoseConfig()
     p = _Parser(prog="acn-diagnose", description="Compare a model with measurements, show where it fails, rank "
                 "which physical effect is missing, add it and watch the error fall.")
     p.add_argument("measured", nargs="?", type=Path, help="measurement dataset (acn-import or acn-collect)")
@@ -717,13 +778,7 @@ def diagnose_parser() -> argparse.ArgumentParser:
     p.add_argument("--side", default="source", choices=("source", "target"), help="which side of a paired dataset")
     p.add_argument("--add", action="append", default=[], metavar="EFFECT", help="fit and add this effect (repeatable)")
     p.add_argument("--auto", action="store_true", help="repeat rank -> add while the error falls by more than the noise")
-    p.add_argument("--auto-alternatives", type=_nonneg_int, default=d.auto_alternatives, metavar="N",
-                   help="with --auto: also start from the next N candidates and keep a chain that predicts clearly "
-                   "better (one effect can stand in for two)")
-    p.add_argument("--finest", default=d.finest, metavar="{shared,type,leg,joint}",
-                   help="the finest granularity an added per-joint effect may get: one value for every joint, one "
-                   "per joint type, leg or joint (a finer one is kept where it predicts significantly better; "
-                   f"coarser is quicker; default {d.finest})")
+    add_flags(p, DiagnoseConfig(), _diagnose_flags())
     p.add_argument("--save-model", type=_out_path, default=None, metavar="FILE", help="write the updated model JSON")
     p.add_argument("--json", type=_out_path, default=None, metavar="FILE", help="write the machine-readable result")
     p.add_argument("--report", type=_out_path, default=None, metavar="FILE.html", help="write the HTML report")
@@ -735,20 +790,13 @@ def diagnose_parser() -> argparse.ArgumentParser:
     p.add_argument("--limits-per-joint", action="store_true",
                    help="--limits, and each per-joint effect also on one joint alone (a worn gearbox, a weak motor): "
                    "the size it shows at on the joint the log shows least")
-    p.add_argument("--closed-loop", type=_nonneg_int, default=0, metavar="N",
+    p.add_argument("--closed-loop", type=nonneg_int, default=0, metavar="N",
                    help="then re-run the measured robot (an acn-collect dataset) from N held-out initial states beside "
                    "the model as given, with --corrector and with the added effects: divergence, eps_transfer, falls")
-    p.add_argument("--closed-loop-seconds", type=_seconds, default=5.0, help="episode length, s")
+    p.add_argument("--closed-loop-seconds", type=seconds, default=5.0, help="episode length, s")
     p.add_argument("--corrector", type=Path, default=None, metavar="DIR",
                    help="with --closed-loop: also run the model with this corrector (acn-fit output)")
     p.add_argument("--no-oracles", action="store_true", help="with --closed-loop: skip the oracle bounds")
-    p.add_argument("--horizons", default=",".join(map(str, d.horizons)),
-                   help="open-loop horizons, in diagnosis steps (--step-seconds each)")
-    p.add_argument("--step-seconds", type=float, default=d.step_seconds,
-                   help="one diagnosis step, s of control steps (rounded, at least one; 0: one control step): "
-                   "at high control rates one control step moves the robot less than its sensor noise")
-    p.add_argument("--effects", default=None, help="comma-separated candidates (default: the whole catalogue)")
-    p.add_argument("--seed", type=_nonneg_int, default=d.seed, help="the held-out split and random starts")
     _add_ray_arguments(p, "the re-simulation batches (measured states, candidate fits; rows in chunks)")
     return p
 
@@ -787,14 +835,10 @@ def diagnose_main(argv: list[str] | None = None) -> int:
         from acn.measurements.data import load_measurements
         from acn.diagnosis import DiagnoseConfig, diagnose, explain_corrector
         from acn.diagnosis.report import terminal, write_html, write_json
-        from acn.sim.effects import EFFECT_NAMES, Model
+        from acn.sim.effects import Model
 
-        try:
-            horizons = tuple(sorted({int(h) for h in args.horizons.split(",")}))
-        except ValueError:
-            raise UserError(f"--horizons must be whole numbers separated by commas, got {args.horizons!r}") from None
-        candidates = EFFECT_NAMES if args.effects is None else tuple(args.effects.split(","))
-        for name in (*candidates, *args.add):
+        cfg = config_from_args(args, DiagnoseConfig(), _diagnose_flags())
+        for name in (*cfg.candidates, *args.add):
             get_effect(name)
         check_input_dir(args.measured, "measurement dataset")
         _check_diagnose_outputs(args)
@@ -808,9 +852,6 @@ def diagnose_main(argv: list[str] | None = None) -> int:
         for corrector in (args.corrector, args.explain_corrector):
             check_input_dir(corrector, "corrector directory")
         model = Model.parse(args.model)
-        cfg = DiagnoseConfig(horizons=horizons, candidates=candidates, seed=args.seed,
-                             step_seconds=args.step_seconds if args.step_seconds != 0 else None,
-                             auto_alternatives=args.auto_alternatives, finest=args.finest)
         cfg.validate()
         data = load_measurements(args.measured, side=args.side)
         if args.closed_loop:  # refuse a log that cannot be re-run before the diagnosis, not after

@@ -27,9 +27,9 @@ from acn.sim.state import SLICES
 # This module runs on one test process (`make test`'s -n 2): the tiny PPO run and its corrector are made once.
 pytestmark = pytest.mark.xdist_group("ppo")
 
-TINY = ["--set", "seconds=1", "--set", "eval_seconds=1", "--set", "refit_seconds=1", "--set", "n_steps=128",
-        "--set", "batch_size=64", "--set", "n_epochs=4", "--set", "refit_episodes=3", "--set", "fit_epochs=2",
-        "--set", "checkpoint_every=512", "--eval-episodes", "2", "--final-eval-episodes", "3"]
+TINY = ["--seconds", "1", "--eval-seconds", "1", "--refit-seconds", "1", "--n-steps", "128", "--batch-size", "64",
+        "--n-epochs", "4", "--refit-episodes", "3", "--fit-epochs", "2", "--checkpoint-every", "512",
+        "--eval-episodes", "2", "--final-eval-episodes", "3"]
 
 
 def sha256(path) -> str:
@@ -220,7 +220,7 @@ def _torque_corrector(out, tmp_path):
     ("torque_corrector", "fitted on torque actions"),
     ("existing_out", "exists"),
     ("resume_nothing", "no checkpoint"),
-    ("bad_set", "PPOConfig field"),
+    ("eval_with_training_setting", "not --n-steps"),
     ("no_out", "needs --out"),
     ("no_corrector", "nothing to correct with"),
 ])
@@ -236,7 +236,7 @@ def test_bad_input_is_one_line_and_exit_2(tiny_run, tmp_path, capsys, case, mess
         "existing_out": ["--timesteps", "64", "--out", str(out), "--corrector",
                          str(shutil.copytree(out / "corrector", tmp_path / "elsewhere"))],
         "resume_nothing": ["--timesteps", "64", "--out", str(new), "--resume"],
-        "bad_set": ["--timesteps", "64", "--out", str(new), "--corrector", str(out / "corrector"), "--set", "speed=9"],
+        "eval_with_training_setting": ["--eval", str(out / "policy"), "--n-steps", "64"],
         "no_out": ["--timesteps", "64", "--corrector", str(out / "corrector")],
         "no_corrector": ["--timesteps", "64", "--out", str(new), "--refit-every", "0"],
     }[case]

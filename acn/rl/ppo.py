@@ -42,10 +42,10 @@ import math
 import shutil
 import sys
 import time
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, replace
 from functools import partial
 from pathlib import Path
-from typing import Any, Callable
+from typing import Callable
 
 import numpy as np
 import torch
@@ -87,7 +87,7 @@ REFIT_SEED_BASE = 2_000_000  # initial states of refit data: never training's or
 
 @dataclass
 class PPOConfig:
-    """Every hyper-parameter of acn-ppo (``--set NAME=VALUE`` sets any of them)."""
+    """Every hyper-parameter of acn-ppo; each is an option of the command (``n_steps``: ``--n-steps``)."""
 
     # ----- run
     timesteps: int = 500_000            # PyBullet control steps, all environments together
@@ -192,31 +192,6 @@ class PPOConfig:
             self.env().validate()
         except ValueError as e:
             raise UserError(str(e)) from None
-
-
-def parse_overrides(cfg: PPOConfig, items: list[str]) -> PPOConfig:
-    """``["n_steps=256", "hidden=64,64"]`` -> a new config; types follow the defaults."""
-    types = {f.name: type(getattr(cfg, f.name)) for f in fields(PPOConfig)}
-    changes: dict[str, Any] = {}
-    for item in items:
-        name, sep, text = item.partition("=")
-        name = name.strip().replace("-", "_")
-        if not sep or name not in types:
-            raise UserError(f"--set expects NAME=VALUE with NAME a PPOConfig field, got {item!r}")
-        kind = types[name]
-        try:
-            if kind is tuple:
-                elem = type(getattr(cfg, name)[0])
-                changes[name] = tuple(elem(x) for x in text.split(",") if x.strip())
-            elif kind is bool:
-                if text.lower() not in ("1", "0", "true", "false", "yes", "no"):
-                    raise ValueError(text)
-                changes[name] = text.lower() in ("1", "true", "yes")
-            else:
-                changes[name] = kind(text)
-        except ValueError:
-            raise UserError(f"--set {name}: expected {kind.__name__}, got {text!r}") from None
-    return replace(cfg, **changes)
 
 
 # ----- environments and the SB3 model ---------------------------------------------------------
