@@ -19,7 +19,7 @@ import argparse
 import numpy as np
 
 from acn.measurements.data import load_measurements
-from acn.datasets.reader import read_info
+from acn.datasets.reader import read_card
 from acn.datasets.record import config_from_metadata
 from acn.corrector.acn import OUTPUT_CHANNELS
 from acn.corrector.evaluate import held_out, output_spread, run_episodes, summarise, typical_spread
@@ -42,7 +42,7 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=4)
     ap.add_argument("--seconds", type=float, default=5.0)
     args = ap.parse_args()
-    cfg = held_out(config_from_metadata(read_info(args.dataset)["acn"]), args.episodes, args.seconds)
+    cfg = held_out(config_from_metadata(read_card(args.dataset).acn), args.episodes, args.seconds)
     target = load_measurements(args.dataset, side="target")
     spread = output_spread(target.state)
     oracles = {"oracle_dataset_weights": dict(weights=1 / spread),

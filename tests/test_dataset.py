@@ -16,6 +16,7 @@ import pytest
 from conftest import load
 
 from acn.datasets import schema
+from acn.datasets.metadata import AcnMetadata, collection_metadata
 from acn.datasets.record import record
 from acn.datasets.writer import DatasetWriter, episode_columns
 from acn.sim.collector import CollectConfig
@@ -63,6 +64,13 @@ def test_metadata_names_simulators_rates_and_channels(small_dataset):
     assert info["fps"] == 50
 
 
+def test_typed_metadata_writes_back_the_blocks_json_unchanged(small_dataset):
+    info = json.loads((small_dataset / "meta" / "info.json").read_text())
+    meta = AcnMetadata.from_json(info[schema.ACN_KEY], small_dataset)
+    assert meta.direction == "pybullet -> mujoco" and meta.episodes[1].collection_index == 1
+    assert json.dumps(meta.to_json()) == json.dumps(info[schema.ACN_KEY])  # the same keys in the same order
+
+
 def test_parquet_files_load_with_the_datasets_library(small_dataset):
     import datasets
 
@@ -71,11 +79,12 @@ def test_parquet_files_load_with_the_datasets_library(small_dataset):
     assert len(d[0]["observation.state"]) == len(STATE_NAMES)
 
 
-def test_fast_writer_loads_identically_to_lerobots_own_writer(tmp_path, small_episodes):
+def test_fast_writer_loads_identically_to_lerobots_own_writer(tmp_path, small_config, small_episodes):
     """Our writer vs LeRobotDataset.add_frame/save_episode on the same episodes."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    ours = DatasetWriter(tmp_path / "ours", fps=50, paired=True, task="trot", acn_meta={})
+    ours = DatasetWriter(tmp_path / "ours", fps=50, paired=True, task="trot",
+                         acn_meta=collection_metadata(small_config))
     for ep in small_episodes:
         ours.write(ep)
     ours.commit()

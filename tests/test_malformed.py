@@ -65,6 +65,26 @@ def test_mutated_acn_metadata(small_dataset, data, delete, new):
             reads_or_one_line(read)
 
 
+@pytest.mark.parametrize("key, value, named", [
+    ("kp", "sixty", "'acn.kp' = 'sixty'"),
+    ("state_names", ["x"], "different state channels"),
+    ("episodes", [{"episode_index": 0, "end": "time_limit", "collection_index": 0}], "'length'"),
+    ("target", None, "'acn.paired' = true"),
+    ("init_noise", {"joint_pos": "wide"}, "'acn.init_noise'"),
+    ("import", {"rows_cut_implausible": -1}, "'acn.import.rows_cut_implausible' = -1"),
+])
+def test_a_malformed_acn_block_is_refused_in_one_line_naming_the_file_and_key(small_dataset, tmp_path, key, value,
+                                                                                named):
+    path = Path(shutil.copytree(small_dataset, tmp_path / "d"))
+    info = json.loads((path / "meta" / "info.json").read_text())
+    info["acn"][key] = value
+    (path / "meta" / "info.json").write_text(json.dumps(info))
+    for read in readers(path):
+        with pytest.raises(UserError) as e:
+            read()
+        assert str(e.value).startswith(str(path)) and named in str(e.value) and "\n" not in str(e.value), str(e.value)
+
+
 @SETTINGS
 @given(data=st.data(), cut=st.floats(0.0, 0.999), flips=st.lists(st.tuples(st.floats(0, 0.999), st.integers(0, 255)),
                                                                   max_size=4))

@@ -550,7 +550,7 @@ def fit(paths: list[str | Path], cfg: FitConfig, log=print, target=None) -> tupl
     device = torch.device(cfg.device)
     torch.manual_seed(cfg.seed)
     data = load_paired([str(p) for p in paths])
-    target_sim = (data.info["target"] or {}).get("simulator")
+    target_sim = data.info.target.simulator if data.info.target else None
     if cfg.variant != "paper" and target_sim != "mujoco":
         raise UserError(f"variant {cfg.variant} needs datasets whose target simulator is mujoco")
     effects = _target_effects(target, cfg.variant, target_sim)
@@ -683,8 +683,8 @@ def fit(paths: list[str | Path], cfg: FitConfig, log=print, target=None) -> tupl
         o = metrics["one_step"]
         log(f"one-step same-state error on held-out rows: {o['error_no_correction']:.4f} -> corrector "
             f"{o['error_corrected']:.4f}, oracle {o['error_oracle']:.4f}: share_of_oracle={o['share_of_oracle']:.3f}")
-    if cfg.eval_episodes > 0 and data.info.get("policy") not in POLICIES:
-        log(f"closed-loop evaluation skipped: the dataset's policy {data.info.get('policy')!r} is not a built-in "
+    if cfg.eval_episodes > 0 and data.info.policy not in POLICIES:
+        log(f"closed-loop evaluation skipped: the dataset's policy {data.info.policy!r} is not a built-in "
             "policy this command can run again (for a PPO policy: acn-ppo --eval POLICY --corrector DIR)")
     elif cfg.eval_episodes > 0:
         from acn.corrector.evaluate import closed_loop
@@ -707,11 +707,11 @@ def fit(paths: list[str | Path], cfg: FitConfig, log=print, target=None) -> tupl
         "fit": asdict(cfg),
         "normalisation": norm_dict,
         "training_data": {"datasets": data.sources, "fingerprint": fingerprint(data.sources),
-                          "source": data.info["source"], "target": data.info["target"],
+                          "source": data.info.source.to_json(), "target": data.info.target.to_json(),
                           "target_effects": [e.to_json() for e in effects],
-                          "action_mode": data.info["action_mode"], "control_hz": data.info["control_hz"],
-                          "policy": data.info["policy"]},
-        "action_channels": data.info["action_names"],
+                          "action_mode": data.info.action_mode, "control_hz": data.info.control_hz,
+                          "policy": data.info.policy},
+        "action_channels": list(data.info.action_names),
         "metrics": _summary(metrics),
     })
     return model, metrics

@@ -19,6 +19,7 @@ from typing import Callable
 import numpy as np
 
 from acn.datasets import schema
+from acn.datasets.metadata import AcnMetadata, DatasetCard
 from acn.errors import UserError
 from acn.jsonfile import read_json
 from acn.sim import plausible
@@ -26,44 +27,41 @@ from acn.sim.state import ACTION_DIM, ACTION_NAMES, STATE_DIM, STATE_NAMES, WRAP
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
-def _direction(info: dict) -> str:
-    acn = info[schema.ACN_KEY]
-    return f"{acn['source']['simulator']} -> {(acn.get('target') or {}).get('simulator')}"
-
 
 # What must agree between datasets that are fitted together: (field as a message names it, its value).
-MUST_MATCH: tuple[tuple[str, Callable[[dict], object]], ...] = (
-    ("direction (source -> target)", _direction),
-    ("robot", lambda info: info.get("robot_type")),
-    ("--control-hz", lambda info: info[schema.ACN_KEY]["control_hz"]),
-    ("--physics-hz", lambda info: round(1.0 / info[schema.ACN_KEY]["physics_dt"], 6)),
-    ("--action-mode", lambda info: info[schema.ACN_KEY]["action_mode"]),
-    ("--kp", lambda info: info[schema.ACN_KEY]["kp"]),
-    ("--kd", lambda info: info[schema.ACN_KEY]["kd"]),
-    ("--torque-limit", lambda info: info[schema.ACN_KEY]["torque_limit"]),
-    ("state channels", lambda info: info[schema.ACN_KEY]["state_names"]),
-    ("joint names", lambda info: info[schema.ACN_KEY]["action_names"]),
+MUST_MATCH: tuple[tuple[str, Callable[[DatasetCard], object]], ...] = (
+    ("direction (source -> target)", lambda card: card.acn.direction),
+    ("robot", lambda card: card.robot_type),
+    ("--control-hz", lambda card: card.acn.control_hz),
+    ("--physics-hz", lambda card: round(card.acn.physics_hz, 6)),
+    ("--action-mode", lambda card: card.acn.action_mode),
+    ("--kp", lambda card: card.acn.kp),
+    ("--kd", lambda card: card.acn.kd),
+    ("--torque-limit", lambda card: card.acn.torque_limit),
+    ("state channels", lambda card: card.acn.state_names),
+    ("joint names", lambda card: card.acn.action_names),
 )
 
 
-def refuse_mixed(paths: list[Path], infos: list[dict]) -> None:
+def refuse_mixed(cards: list[DatasetCard]) -> None:
     """One line naming both datasets and the field where datasets fitted together disagree."""
-    for path, info in zip(paths[1:], infos[1:]):
+    first = cards[0]
+    for card in cards[1:]:
         for what, value in MUST_MATCH:
-            if value(info) != value(infos[0]):
-                raise UserError(f"{path} and {paths[0]} do not belong together: {what} {value(info)!r:.60} vs "
-                                f"{value(infos[0])!r:.60}")
+            if value(card) != value(first):
+                raise UserError(f"{card.path} and {first.path} do not belong together: {what} {value(card)!r:.60} vs "
+                                f"{value(first)!r:.60}")
 
 
-def read_info(path: str | Path) -> dict:
-    """``meta/info.json`` of a dataset, with a clear error if it is not an acn dataset."""
+def read_card(path: str | Path) -> DatasetCard:
+    """The ``acn`` block of a dataset's ``meta/info.json``, read and checked once (a one-line
+    ``UserError`` if it is not an acn dataset or the block is malformed), with LeRobot's robot type."""
     info = read_json(Path(path) / "meta" / "info.json", f"{path} is not a LeRobot dataset (no meta/info.json)")
     if not isinstance(info, dict) or schema.ACN_KEY not in info:
         raise UserError(f"{path} was not written by acn-collect (no '{schema.ACN_KEY}' block in meta/info.json)")
-    problem = schema.acn_block_problem(info[schema.ACN_KEY])
-    if problem:
-        raise UserError(f"{path} {problem}")
-    return info
+    robot = info.get("robot_type")
+    return DatasetCard(Path(path), robot if isinstance(robot, str) else None,
+                       AcnMetadata.from_json(info[schema.ACN_KEY], path))
 
 
 _WIDTH = {schema.STATE: (STATE_DIM,), schema.NEXT_STATE: (STATE_DIM,), schema.ACTION: (ACTION_DIM,),
@@ -125,7 +123,7 @@ class PairedTransitions:
     target_action: np.ndarray  # (N, 12) what the target received
     target_next_state: np.ndarray  # (N, 43)
     episode: np.ndarray       # (N,) int, unique across the datasets read
-    info: dict                # the first dataset's ``acn`` block
+    info: AcnMetadata         # the first dataset's ``acn`` block
     sources: list[str] = field(default_factory=list)
     skipped_nonfinite: int = 0
 
@@ -174,20 +172,18 @@ def load_paired(paths: list[str | Path]) -> PairedTransitions:
     if not paths:
         raise UserError("no dataset given")
     paths = [Path(p) for p in paths]
-    infos = [read_info(p) for p in paths]
-    for path, info in zip(paths, infos):
-        if not info[schema.ACN_KEY].get("paired"):
-            raise UserError(f"{path} is not a paired dataset (recorded without --target)")
-    refuse_mixed(paths, infos)
-    first = infos[0][schema.ACN_KEY]
+    cards = [read_card(p) for p in paths]
+    for card in cards:
+        if not card.acn.paired:
+            raise UserError(f"{card.path} is not a paired dataset (recorded without --target)")
+    refuse_mixed(cards)
     parts, episode_offset, skipped = [], 0, 0
-    for path, info in zip(paths, infos):
-        acn = info[schema.ACN_KEY]
+    for path, card in zip(paths, cards):
         keys = [schema.STATE, schema.ACTION, schema.NEXT_STATE, schema.target_key(schema.STATE),
                 schema.target_key(schema.ACTION), schema.target_key(schema.NEXT_STATE)]
         cols, _ = read_columns(path, keys + ["episode_index"])
         arrays = [cols[k] for k in keys]
-        mode = acn["action_mode"]
+        mode = card.acn.action_mode
         refuse_implausible(path, cols["episode_index"], [
             (f"{side}state", cols[side + schema.STATE], plausible.STATE_BOUND, STATE_NAMES)
             for side in ("", schema.TARGET_PREFIX)] + [
@@ -201,7 +197,7 @@ def load_paired(paths: list[str | Path]) -> PairedTransitions:
         parts.append([a[finite] for a in arrays] + [episode[finite]])
         episode_offset = int(episode.max()) + 1 if len(episode) else episode_offset
     cat = [np.concatenate([p[i] for p in parts]) for i in range(7)]
-    return PairedTransitions(*cat, info=first, sources=[str(p) for p in paths], skipped_nonfinite=skipped)
+    return PairedTransitions(*cat, info=cards[0].acn, sources=[str(p) for p in paths], skipped_nonfinite=skipped)
 
 
 @dataclass
@@ -213,7 +209,7 @@ class RecordedFrames:
     """
 
     path: Path
-    info: dict                # the dataset's ``acn`` block
+    info: AcnMetadata         # the dataset's ``acn`` block
     fps: int
     episode: np.ndarray       # (N,) int
     frame: np.ndarray         # (N,) int, index within the episode
@@ -240,8 +236,8 @@ class RecordedFrames:
 def load_frames(path: str | Path) -> RecordedFrames:
     """Read one ``acn-collect`` dataset, paired or not, through ``LeRobotDataset``."""
     path = Path(path)
-    acn = read_info(path)[schema.ACN_KEY]
-    paired = acn["paired"]
+    acn = read_card(path).acn
+    paired = acn.paired
     keys = [schema.STATE, schema.ACTION] + ([schema.target_key(schema.STATE), schema.target_key(schema.ACTION)]
                                             if paired else [])
     cols, fps = read_columns(path, keys + list(INDEX_COLUMNS))

@@ -2,16 +2,17 @@
 
 The collection indices 0..N-1 are split into K contiguous ranges. Shard k is written by one
 Ray task pinned to the driver's node (the shards and ``out`` share its disk; the writer is the
-part that needs it), which runs ``record`` for its range: its episodes are simulated as Ray
-tasks anywhere in the cluster and written in order by the shard's own writer. Then
-``lerobot.datasets.aggregate.aggregate_datasets`` merges the shards, in order, into a hidden
-directory beside ``out`` that is renamed into place, and the ``acn`` block of
-``meta/info.json`` (the collection's metadata and every episode with its collection index, in
-order) is rebuilt from the shards'. Frame values equal an unsharded collection's; the files
+part that needs it), which runs the writer loop (``acn.datasets.stream.write_stream``) for its
+range: its episodes are simulated as Ray tasks anywhere in the cluster and written in order by
+the shard's own writer. Then ``lerobot.datasets.aggregate.aggregate_datasets`` merges the
+shards, in order, into a hidden directory beside ``out`` that is renamed into place, and the
+``acn`` block of ``meta/info.json`` (the collection's metadata and every episode with its
+collection index, in order) is rebuilt from the shards'. Frame values equal an unsharded collection's; the files
 do not (lerobot rewrites the rows with pandas and aggregates the shards' statistics).
 
-Ctrl-C or SIGTERM: every shard task is cancelled, each commits the episodes it finished (as
-``record`` does), and those are merged: a valid dataset of the finished episodes, or nothing.
+Ctrl-C or SIGTERM: every shard task is cancelled, each commits the episodes it finished (as an
+unsharded collection does), and those are merged: a valid dataset of the finished episodes, or
+nothing.
 """
 
 from __future__ import annotations
@@ -21,18 +22,21 @@ import io
 import os
 import shutil
 import signal
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
 from acn.atomic import move_into_place, temporary_beside
-from acn.outputs import refuse_foreign
 from acn.datasets import schema
-from acn.datasets.record import Interrupted, _commit_quietly, _raise_interrupt, record
+from acn.datasets.metadata import AcnMetadata
+from acn.datasets.reader import read_card
+from acn.datasets.stream import Interrupted, commit_quietly, raise_interrupt, write_stream
+from acn.outputs import refuse_foreign
+from acn.sim import parallel
 from acn.sim.collector import CollectConfig
-from acn.sim.parallel import RayConfig, _remote, _unwrap, import_ray
+from acn.sim.parallel import RayConfig, import_ray, remote, task_error
 
 CANCEL_WAIT_S = 120.0  # after an interrupt, how long the shards get to commit what they finished
 
@@ -57,24 +61,20 @@ def _write_shard(cfg: CollectConfig, indices: list[int], path: str, ray_config: 
         progress.put((ep.index, len(ep), ep.end))
 
     try:
-        record(cfg, path, ray=ray_config, indices=indices, on_episode=report, load_corrector=load_corrector)
+        with parallel.ray_session(ray_config):
+            write_stream(cfg, path, parallel.episodes_on_ray(cfg, indices, load_corrector=load_corrector), [],
+                         overwrite=False, on_episode=report)
     except Interrupted as e:
         return e.episodes
     return len(indices)
 
 
-def merged_acn_metadata(blocks: list[dict]) -> dict:
+def merged_acn_metadata(blocks: list[AcnMetadata]) -> AcnMetadata:
     """The ``acn`` block of the merged dataset from the shards' blocks, in shard order."""
-    merged = {k: v for k, v in blocks[0].items() if k not in ("episodes", "empty_episodes")}
-    episodes, empty = [], []
-    for block in blocks:
-        for entry in block["episodes"]:
-            episodes.append({**entry, "episode_index": len(episodes)})
-        empty.extend(block.get("empty_episodes", []))
-    merged["episodes"] = episodes
-    if empty:
-        merged["empty_episodes"] = empty
-    return merged
+    episodes = [entry for block in blocks for entry in block.episodes]
+    empty = [entry for block in blocks for entry in block.empty_episodes or ()]
+    return replace(blocks[0], episodes=tuple(replace(entry, episode_index=i) for i, entry in enumerate(episodes)),
+                   empty_episodes=tuple(empty) or None)
 
 
 class _Merge:
@@ -93,7 +93,7 @@ class _Merge:
                 aggregate_datasets([f"acn/{p.name}" for p in self.shards], f"acn/{self.out.name}",
                                    roots=self.shards, aggr_root=tmp)
             info = load_info(tmp)
-            info[schema.ACN_KEY] = merged_acn_metadata([load_info(p)[schema.ACN_KEY] for p in self.shards])
+            info[schema.ACN_KEY] = merged_acn_metadata([read_card(p).acn for p in self.shards]).to_json()
             write_info(info, tmp)
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -108,8 +108,6 @@ def record_shards(cfg: CollectConfig, out: str | Path, shards: int, ray_config: 
     from ray.util.queue import Queue
     from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
-    from lerobot.datasets.utils import load_info
-
     ray = import_ray()
     out = Path(out).absolute()
     refuse_foreign(out, schema.DATASET, overwrite)
@@ -120,8 +118,8 @@ def record_shards(cfg: CollectConfig, out: str | Path, shards: int, ray_config: 
     work.mkdir(parents=True)
     paths = [work / f"shard-{k:03d}" for k in range(len(ranges))]
     here = NodeAffinitySchedulingStrategy(ray.get_runtime_context().get_node_id(), soft=False)
-    task = _remote(ray, "shard", _write_shard, num_cpus=0, max_retries=0)
-    previous_int, previous = signal.getsignal(signal.SIGINT), signal.signal(signal.SIGTERM, _raise_interrupt)
+    task = remote(ray, "shard", _write_shard, num_cpus=0, max_retries=0)
+    previous_int, previous = signal.getsignal(signal.SIGINT), signal.signal(signal.SIGTERM, raise_interrupt)
     refs: list = []
     progress = Queue(actor_options={"num_cpus": 0})
 
@@ -141,18 +139,18 @@ def record_shards(cfg: CollectConfig, out: str | Path, shards: int, ray_config: 
         try:
             ray.get(refs)
         except ray.exceptions.RayTaskError as e:
-            raise _unwrap(ray, e) from None
+            raise task_error(ray, e) from None
         report()
-        path = _commit_quietly(_Merge(paths, out), cfg)
+        path = commit_quietly(_Merge(paths, out), cfg)
     except KeyboardInterrupt:
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not tear the merge
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
         for ref in refs:
-            ray.cancel(ref)  # the shard's record commits its finished episodes
+            ray.cancel(ref)  # the shard's writer loop commits its finished episodes
         ray.wait(refs, num_returns=len(refs), timeout=CANCEL_WAIT_S)
         done = [p for p in paths if (p / "meta" / "info.json").is_file()]
-        path = _commit_quietly(_Merge(done, out), cfg) if done and not replacing else None
-        raise Interrupted(path, len(load_info(path)[schema.ACN_KEY]["episodes"]) if path else 0) from None
+        path = commit_quietly(_Merge(done, out), cfg) if done and not replacing else None
+        raise Interrupted(path, len(read_card(path).acn.episodes) if path else 0) from None
     except BaseException:
         for ref in refs:
             ray.cancel(ref, force=True)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import os
 import shutil
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +27,7 @@ import pyarrow.parquet as pq
 
 from acn.atomic import move_into_place, temporary_beside
 from acn.datasets import schema
+from acn.datasets.metadata import AcnMetadata, EmptyEpisode, EpisodeEntry
 from acn.errors import UserError
 from acn.outputs import refuse_foreign
 from acn.sim.collector import Episode, Trace
@@ -79,9 +81,12 @@ def _sort_stats(root: Path) -> None:
 
 
 class DatasetWriter:
-    """Writes ``Episode`` objects into a new dataset at ``root`` (see module docstring)."""
+    """Writes ``Episode`` objects into a new dataset at ``root`` (see module docstring).
 
-    def __init__(self, root: str | Path, fps: int, paired: bool, task: str, acn_meta: dict,
+    ``acn`` is the ``acn`` block written on ``commit``, with the episodes written listed in it;
+    a writer of an import may replace it (``dataclasses.replace``) with what the import cut."""
+
+    def __init__(self, root: str | Path, fps: int, paired: bool, task: str, acn_meta: AcnMetadata,
                  overwrite: bool = False) -> None:
         from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
         from lerobot.datasets.utils import get_hf_features_from_features
@@ -93,11 +98,12 @@ class DatasetWriter:
         self.paired, self.task = paired, task
         self.meta = LeRobotDatasetMetadata.create(
             repo_id=f"acn/{self.root.name}", fps=fps,
-            features=schema.features(paired, hybrid=bool(acn_meta.get("hybrid_actions"))),
+            features=schema.features(paired, hybrid=bool(acn_meta.hybrid_actions)),
             robot_type=schema.ROBOT_TYPE, root=self._tmp, use_videos=False,
         )
-        self._acn = {**acn_meta, "episodes": []}
-        self.meta.info[schema.ACN_KEY] = self._acn
+        self.acn = acn_meta
+        self._episodes: list[EpisodeEntry] = []
+        self._empty: list[EmptyEpisode] = []
         self._arrow_schema = get_hf_features_from_features(self.meta.features).arrow_schema
         self._writer: pq.ParquetWriter | None = None
         self._file = (0, 0)  # (chunk, file) being written
@@ -111,7 +117,7 @@ class DatasetWriter:
 
         n = len(ep)
         if n == 0:
-            self._acn.setdefault("empty_episodes", []).append({"collection_index": ep.index, "end": ep.end})
+            self._empty.append(EmptyEpisode(collection_index=ep.index, end=ep.end))
             return
         self.meta.save_episode_tasks([self.task])
         cols = episode_columns(ep, self.paired)
@@ -127,8 +133,8 @@ class DatasetWriter:
             warnings.simplefilter("ignore", RuntimeWarning)
             stats = compute_episode_stats(cols, self.meta.features)
         self.meta.save_episode(self.num_episodes, n, [self.task], stats, location)
-        self._acn["episodes"].append({"episode_index": self.num_episodes, "length": n, "end": ep.end,
-                                      "collection_index": ep.index})
+        self._episodes.append(EpisodeEntry(episode_index=self.num_episodes, length=n, end=ep.end,
+                                           collection_index=ep.index))
         self.num_episodes += 1
         self.num_frames += n
 
@@ -169,6 +175,8 @@ class DatasetWriter:
             self._writer.close()
             self._writer = None
         self.meta._close_writer()  # flushes the buffered episode metadata
+        self.meta.info[schema.ACN_KEY] = replace(self.acn, episodes=tuple(self._episodes),
+                                                 empty_episodes=tuple(self._empty) or None).to_json()
         write_info(self.meta.info, self._tmp)
         _sort_stats(self._tmp)
         return move_into_place(self._tmp, self.root)

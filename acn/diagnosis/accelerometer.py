@@ -220,7 +220,7 @@ def fit_gamma(velocity: np.ndarray, next_velocity: np.ndarray, state: np.ndarray
 def read_accelerometer(problem: Problem, model: Model, rows: np.ndarray) -> Accelerometer:
     """How to read ``problem``'s accelerometer (module docstring): as the dataset states, else as
     the integration decides, else as ``model`` re-simulated from ``rows`` predicts it best."""
-    stated = problem.data.info.get("imu_acc")
+    stated = problem.data.info.imu_acc
     if stated in IMU_ACC_KINDS:
         return Accelerometer(stated, stated=True)
     columns = np.flatnonzero(np.array(problem.group_of_channel()) == "imu_acc")

@@ -54,8 +54,8 @@ def robot_config(dataset: str | Path, data: Measurements, side: str, model: Mode
     from acn.sim.policies import POLICIES
 
     info = data.info
-    if info.get("policy") not in POLICIES or "init_noise" not in info:
-        raise UserError(f"--closed-loop re-runs the measured robot: {dataset} is a log (policy {info.get('policy')!r}), "
+    if info.policy not in POLICIES or info.init_noise is None:
+        raise UserError(f"--closed-loop re-runs the measured robot: {dataset} is a log (policy {info.policy!r}), "
                         "not an acn-collect dataset whose simulator and policy can be run again")
     if side != "source":
         raise UserError("--closed-loop needs --side source: the collected policy acts on the source's state")

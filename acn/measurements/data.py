@@ -19,7 +19,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from acn.datasets import schema
-from acn.datasets.reader import read_columns, read_info, refuse_implausible
+from acn.datasets.metadata import AcnMetadata
+from acn.datasets.reader import read_card, read_columns, refuse_implausible
 from acn.errors import UserError
 from acn.sim import plausible
 from acn.sim.actuation import position_targets
@@ -46,7 +47,7 @@ class Measurements:
     episode: np.ndarray      # (N,) int, rows of one episode are consecutive control steps
     frame: np.ndarray        # (N,) int, control step within the episode
     control: SimConfig       # the settings the robot was driven with (nominal physical parameters)
-    info: dict               # the dataset's ``acn`` block
+    info: AcnMetadata        # the dataset's ``acn`` block
     description: str = ""
     missing: list[str] = field(default_factory=list)   # channels the log lacks
     height: EstimatedHeight | None = None  # how estimated trunk heights depend on the started model's ground
@@ -140,11 +141,11 @@ def load_measurements(path: str | Path, side: str = "source") -> Measurements:
     if side not in SIDES:
         raise UserError(f"side must be one of {', '.join(SIDES)}, got {side!r}")
     path = Path(path)
-    acn = read_info(path)[schema.ACN_KEY]
-    if side == "target" and not acn["paired"]:
+    acn = read_card(path).acn
+    if side == "target" and not acn.paired:
         raise UserError(f"{path} is not paired: it has no target side")
     key = (lambda k: k) if side == "source" else schema.target_key
-    hybrid = bool(acn.get("hybrid_actions")) and side == "source"
+    hybrid = bool(acn.hybrid_actions) and side == "source"
     cols, _ = read_columns(path, [key(schema.STATE), key(schema.ACTION), key(schema.NEXT_STATE)]
                            + ["episode_index", "frame_index"] + [schema.ACTION_HYBRID] * hybrid,
                            optional=(key(schema.EFFORT),))
@@ -158,7 +159,7 @@ def load_measurements(path: str | Path, side: str = "source") -> Measurements:
             raise UserError(f"{path} has gains in {schema.ACTION_HYBRID} that are negative or not finite")
         action = np.concatenate([action, sent], axis=1)
     effort = cols.get(key(schema.EFFORT), np.full_like(action, np.nan))
-    missing = list(acn.get("missing_channels", []))
+    missing = list(acn.missing_channels or ())
     lacking = [g for g in REQUIRED_GROUPS if all(n in missing for n in GROUPS[g])]
     if lacking:
         raise UserError(f"{path} has no {' or '.join(lacking)} channels: a diagnosis needs joint positions and actions")
@@ -169,13 +170,14 @@ def load_measurements(path: str | Path, side: str = "source") -> Measurements:
         raise UserError(f"{path}: every state is non-finite (NaN or inf): nothing to compare")
     refuse_implausible(path, cols["episode_index"], [
         ("state", state, plausible.STATE_BOUND, STATE_NAMES), ("next state", next_state, plausible.STATE_BOUND, STATE_NAMES),
-        ("action", action, plausible.action_bound(acn["action_mode"], action.shape[1]),
+        ("action", action, plausible.action_bound(acn.action_mode, action.shape[1]),
          plausible.action_names(action.shape[1]))])
-    control = schema.control_config(acn, hybrid=hybrid)
-    who = (acn.get(side) or {}).get("simulator") or side
+    control = acn.sim_config(hybrid=hybrid)
+    simulator = acn.source if side == "source" else acn.target
+    who = simulator.simulator if simulator else side
     return Measurements(state, action, next_state, effort, cols["episode_index"].astype(np.int64),
                         cols["frame_index"].astype(np.int64), control, acn,
-                        description=f"{path.name} ({who}{', ' + side + ' side' if acn.get('paired') else ''})",
+                        description=f"{path.name} ({who}{', ' + side + ' side' if acn.paired else ''})",
                         missing=missing)
 
 

@@ -45,10 +45,12 @@ import math
 import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from types import MappingProxyType
 
 import numpy as np
 
 from acn.datasets import schema
+from acn.datasets.metadata import AcnMetadata, ImportInfo, Simulator
 from acn.measurements import checks, naming
 from acn.errors import UserError
 from acn.jsonfile import read_json
@@ -488,19 +490,19 @@ def import_log(log: str | Path | list[str | Path], out: str | Path, cfg: ImportC
     steps = _time_steps(episode, timestamp)
     _check_time_step(steps, period, cfg.dt_tolerance, timestamp)
     spread = float(np.percentile(np.abs(steps / period - 1.0), 99)) if len(steps) else 0.0
-    meta = {
-        "format_version": schema.FORMAT_VERSION, "paired": False,
-        "source": {"simulator": "log", "version": None, "file": logs[0].name,
-                   **({"files": [p.name for p in logs]} if len(logs) > 1 else {})}, "target": None,
-        "physics_dt": 1.0 / cfg.physics_hz, "substeps": cfg.physics_hz // cfg.control_hz,
-        "control_hz": float(cfg.control_hz), "action_mode": cfg.action_mode,
-        "kp": joint_gains(cfg.kp), "kd": joint_gains(cfg.kd),
-        "torque_limit": cfg.torque_limit, "imu_acc": cfg.imu_acc, "model_params": ModelParams().as_json(),
-        "policy": "log",
-        "seed": None, "corrector": None, "state_names": list(STATE_NAMES), "action_names": list(ACTION_NAMES),
-        "fall_rule": FALL_RULE, "missing_channels": missing, "effort_logged": has_effort,
-        "hybrid_actions": action.shape[1] > NUM_JOINTS,
-    }
+    meta = AcnMetadata(
+        format_version=schema.FORMAT_VERSION, paired=False,
+        source=Simulator(simulator="log", version=None, file=logs[0].name,
+                         files=tuple(p.name for p in logs) if len(logs) > 1 else None), target=None,
+        physics_dt=1.0 / cfg.physics_hz, substeps=cfg.physics_hz // cfg.control_hz,
+        control_hz=float(cfg.control_hz), action_mode=cfg.action_mode,
+        kp=joint_gains(cfg.kp), kd=joint_gains(cfg.kd),
+        torque_limit=float(cfg.torque_limit), imu_acc=cfg.imu_acc,
+        model_params=MappingProxyType(ModelParams().as_json()), policy="log",
+        seed=None, corrector=None, state_names=STATE_NAMES, action_names=ACTION_NAMES,
+        fall_rule=FALL_RULE, missing_channels=tuple(missing), effort_logged=has_effort,
+        hybrid_actions=action.shape[1] > NUM_JOINTS,
+    )
     writer = DatasetWriter(out, fps=cfg.control_hz, paired=False, task=f"log {log.name}", acn_meta=meta,
                            overwrite=overwrite)
     dropped = transitions = 0
@@ -526,17 +528,14 @@ def import_log(log: str | Path | list[str | Path], out: str | Path, cfg: ImportC
                               hybrid=hybrid, quaternion=quaternion, partial_effort=partial_effort, unused=unused,
                               suggested_map=suggested, map_notes=map_notes, malformed=read_log.malformed,
                               text_rows=read_log.text_rows, text_example=read_log.text_example)
-        writer.meta.info[schema.ACN_KEY]["import"] = {"file": logs[0].name, "files": [p.name for p in logs],
-                          "rows": n, "transitions": transitions,
-                          "rows_cut_nonfinite": report.cut_nonfinite,
-                          "rows_cut_implausible": report.cut_implausible,
-                          "rows_malformed": len(report.malformed), "rows_with_text": report.text_rows,
-                          "time_step_breaks": report.time_breaks,
-                          "time_step_spread": round(spread, 4), "hybrid_command": hybrid,
-                          "segments_too_short": dropped, "dt_tolerance": cfg.dt_tolerance,
-                          "linvel_frame": cfg.linvel_frame, "angvel_frame": cfg.angvel_frame,
-                          "leg_order": list(cfg.leg_order), "shift_actions": cfg.shift_actions,
-                          "checks": [f.to_json() for f in report.findings]}
+        writer.acn = replace(writer.acn, import_info=ImportInfo(
+            file=logs[0].name, files=tuple(p.name for p in logs), rows=n, transitions=transitions,
+            rows_cut_nonfinite=report.cut_nonfinite, rows_cut_implausible=report.cut_implausible,
+            rows_malformed=len(report.malformed), rows_with_text=report.text_rows,
+            time_step_breaks=report.time_breaks, time_step_spread=round(spread, 4), hybrid_command=tuple(hybrid),
+            segments_too_short=dropped, dt_tolerance=cfg.dt_tolerance, linvel_frame=cfg.linvel_frame,
+            angvel_frame=cfg.angvel_frame, leg_order=tuple(cfg.leg_order), shift_actions=cfg.shift_actions,
+            checks=tuple(MappingProxyType(f.to_json()) for f in report.findings)))
         if writer.num_episodes == 0:
             raise UserError(f"{log}: no two consecutive good rows at {cfg.control_hz} Hz: nothing to import "
                             f"({report.cut_nonfinite} non-finite rows, {report.cut_implausible} with values no A1 can "

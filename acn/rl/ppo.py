@@ -56,8 +56,9 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor, VecNormalize
 from torch import nn
 
-from acn.atomic import move_into_place, temporary_beside, write_file
+from acn.atomic import move_into_place, replacing, temporary_beside, write_file
 from acn.errors import UserError
+from acn.jsonfile import strict_json
 from acn.outputs import Output, json_with_format, refuse_foreign
 from acn.corrector.acn import INPUT_CHANNELS
 from acn.corrector.corrector import Corrector, load_for_target
@@ -635,9 +636,8 @@ class Trainer:
         tmp.mkdir(parents=True)
         try:
             self.model.save(tmp / "ppo.zip")
-            (tmp / "normalisation.json").write_text(json.dumps(_norm_stats(self.norm)))
-            (tmp / "state.json").write_text(json.dumps({"config": asdict(self.cfg), "state": asdict(self.state)},
-                                                       default=_json_default))
+            write_json(tmp / "normalisation.json", _norm_stats(self.norm))
+            write_json(tmp / "state.json", {"config": asdict(self.cfg), "state": asdict(self.state)})
             move_into_place(tmp, self.ckpt)
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -798,17 +798,10 @@ class Algorithm2(BaseCallback):
 
 
 # ----- files ---------------------------------------------------------------------------------
-def _json_default(o):
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(type(o))
-
-
 def write_json(path: str | Path, data: dict) -> None:
-    """JSON (numpy scalars and arrays as numbers and lists), written whole or not at all."""
-    write_file(path, json.dumps(data, indent=2, default=_json_default))
+    """Strict JSON (``strict_json``: numpy numbers and arrays as plain ones, a non-finite number as
+    null), written whole or not at all."""
+    write_file(path, json.dumps(strict_json(data), indent=2, allow_nan=False))
 
 
 def plot_curves(state: RunState, final: dict | None, path: Path) -> None:
@@ -853,7 +846,8 @@ def plot_curves(state: RunState, final: dict | None, path: Path) -> None:
     b.margins(x=0.08)
     b.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    with replacing(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
 
 

@@ -14,8 +14,8 @@ what is sent (so results equal the local run bit for bit):
 
 Simulators and compiled models are built once per Ray worker process and kept, keyed by the
 SHA-256 of their config's JSON (``config_key``): a worker that runs many episodes or chunks of
-the same model builds it once. Nothing here holds state in the driver except the executor
-opened by ``ray_executor``.
+the same model builds it once. Nothing here holds state in the driver: the executor
+``ray_executor`` opens is the one ``acn.sim.resim.executing_on`` hands the batches to.
 
 ``ray_session`` starts a local Ray instance (``address=None``: ``cpus`` CPUs, a small object
 store, logs and sockets in a temporary directory that is removed afterwards) or joins a running
@@ -40,11 +40,12 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator
 import numpy as np
 
 from acn.errors import UserError
+from acn.sim.cpus import usable_cpus
+from acn.sim.resim import Prediction, Resimulator, executing_on
 
 if TYPE_CHECKING:  # pragma: no cover
     from acn.sim.backends import SimConfig
     from acn.sim.collector import CollectConfig, Episode
-    from acn.sim.resim import Prediction
 
 INSTALL_HINT = "pip install -e '.[ray]'"
 OBJECT_STORE_MB = 200        # local instance: shared-memory object store, MB
@@ -53,12 +54,6 @@ IN_FLIGHT_PER_CPU = 2        # episode tasks submitted ahead per Ray CPU
 # below it a Ray round trip (a few ms, measured by benchmarks/scale.py) costs more than it saves.
 RAY_MIN_CHUNK_STEPS = 2000
 WORKER_CACHE_SIZE = 8        # built simulators / Resimulators kept per Ray worker process
-
-
-def usable_cpus() -> int:
-    """CPUs this process may run on (a taskset or a container's CPU set; all of them where the
-    platform cannot say, as on macOS)."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 def import_ray():
@@ -128,7 +123,7 @@ def cluster_cpus(ray) -> int:
     return max(1, int(ray.cluster_resources().get("CPU", 1)))
 
 
-def _unwrap(ray, error: BaseException) -> BaseException:
+def task_error(ray, error: BaseException) -> BaseException:
     """A remote task's own exception (a ValueError stays a one-line ValueError), not Ray's wrapper."""
     if isinstance(error, ray.exceptions.RayTaskError) and isinstance(error.cause, Exception):
         return error.cause
@@ -182,7 +177,9 @@ def _collect(key: str, config: "CollectConfig", indices: list[int], load_correct
 _REMOTE: dict[str, Any] = {}
 
 
-def _remote(ray, name: str, fn: Any, **options) -> Any:
+def remote(ray, name: str, fn: Any, **options) -> Any:
+    """``ray.remote(**options)(fn)``, made once per process and kept under ``name``: each one
+    ``ray.remote`` makes is exported to the cluster again on its first call."""
     if name not in _REMOTE:
         _REMOTE[name] = ray.remote(**options)(fn)
     return _REMOTE[name]
@@ -204,7 +201,7 @@ def episodes_on_ray(config: "CollectConfig", indices: Iterable[int], in_flight: 
     ray = import_ray()
     if not ray.is_initialized():
         raise RuntimeError("episodes_on_ray needs an open ray_session")
-    task = _remote(ray, "collect", _collect, num_cpus=1, max_retries=1)
+    task = remote(ray, "collect", _collect, num_cpus=1, max_retries=1)
     in_flight = max(1, in_flight or IN_FLIGHT_PER_CPU * cluster_cpus(ray))
     key, config_ref = config_key(config), ray.put(config)
     todo, running = iter(list(indices)), deque()
@@ -220,7 +217,7 @@ def episodes_on_ray(config: "CollectConfig", indices: Iterable[int], in_flight: 
         try:
             (episode,) = ray.get(running[0])
         except ray.exceptions.RayTaskError as e:
-            raise _unwrap(ray, e) from None
+            raise task_error(ray, e) from None
         running.popleft()
         submit()
         yield episode
@@ -231,8 +228,6 @@ class _ResimWorker:
     """Ray actor (one CPU): runs chunks of rows through the local Resimulator, models cached."""
 
     def run(self, key: str, backend: str, configs: list, states, actions, previous, model):
-        from acn.sim.resim import Resimulator
-
         sim = _cached("resim:" + key, lambda: Resimulator(backend, configs, threads=1), lambda r: r.close())
         p = sim.run(states, actions, previous, model=model)
         return p.state, p.effort, p.diverged
@@ -262,15 +257,13 @@ class RayResimExecutor:
 
     def _pool(self) -> list:
         if not self._actors:
-            actor = _remote(self.ray, "resim", _ResimWorker, num_cpus=1)
+            actor = remote(self.ray, "resim", _ResimWorker, num_cpus=1)
             self._actors = [actor.remote() for _ in range(self.workers)]
         return self._actors
 
     def resimulate(self, backend: str, configs: list["SimConfig"], states: np.ndarray, actions: np.ndarray,
                    previous: np.ndarray | None, model: np.ndarray) -> "Prediction":
         """``Resimulator(backend, configs).run(states, actions, previous, model)``, rows chunked on Ray."""
-        from acn.sim.resim import Prediction
-
         ray = self.ray
         n, k = actions.shape[:2]
         chunks = max(1, min(self.workers, n * k // self.min_chunk_steps, n))
@@ -285,7 +278,7 @@ class RayResimExecutor:
         try:
             parts = ray.get(refs)
         except ray.exceptions.RayTaskError as e:
-            raise _unwrap(ray, e) from None
+            raise task_error(ray, e) from None
         except BaseException:
             for ref in refs:
                 ray.cancel(ref)
@@ -300,25 +293,15 @@ class RayResimExecutor:
         self._actors = []
 
 
-_ACTIVE: RayResimExecutor | None = None
-
-
-def active_executor() -> RayResimExecutor | None:
-    """The executor ``Resimulator.run`` sends large batches to (None: everything runs locally)."""
-    return _ACTIVE
-
-
 @contextmanager
 def ray_executor(address: str | None = None, cpus: int | None = None,
                  min_chunk_steps: int = RAY_MIN_CHUNK_STEPS) -> Iterator[RayResimExecutor]:
     """Within this block every ``Resimulator.run`` batch of at least two chunks runs on Ray
     (``address``/``cpus``: as ``RayConfig``); results equal the local run bit for bit."""
-    global _ACTIVE
     with ray_session(RayConfig(address=address or None, cpus=cpus)) as ray:
-        executor, previous = RayResimExecutor(ray, min_chunk_steps=min_chunk_steps), _ACTIVE
-        _ACTIVE = executor
+        executor = RayResimExecutor(ray, min_chunk_steps=min_chunk_steps)
         try:
-            yield executor
+            with executing_on(executor):
+                yield executor
         finally:
-            _ACTIVE = previous
             executor.close()

@@ -13,18 +13,23 @@ batch can hold many parameter values (finite differences, fits) at once.
 - PyBullet: one simulator per model, ``set_state`` / ``step`` row by row.
 
 Predicted contacts are not simulated state: they come back NaN.
+
+Inside ``with executing_on(executor)``, ``Resimulator.run`` hands the batches the executor
+``takes`` to it instead (``acn.sim.parallel.ray_executor``: chunks on Ray actors, the same
+result bit for bit); everywhere else every batch runs here.
 """
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Iterator, Protocol, Sequence
 
 import numpy as np
 
-from acn.sim import parallel
 from acn.sim.actuation import Actuation, history_window
 from acn.sim.backends import SimConfig, SimulationDiverged, make_backend
+from acn.sim.cpus import usable_cpus
 from acn.sim.state import ACTION_DIM, SLICES, STATE_DIM
 
 MAX_BATCH_FLOATS = 4_000_000  # rollout output held at once (~32 MB)
@@ -37,6 +42,38 @@ class Prediction:
     state: np.ndarray     # (N, K, 43) s_{t+1} .. s_{t+K}; contacts NaN; NaN rows where diverged
     effort: np.ndarray    # (N, K, 12) mean applied joint torque over each control step, N m
     diverged: np.ndarray  # (N,) bool: the simulation blew up (non-finite or absurd state)
+
+
+class BatchExecutor(Protocol):
+    """Runs some ``Resimulator.run`` batches elsewhere (``acn.sim.parallel.RayResimExecutor``)."""
+
+    def takes(self, backend: str, rows: int, steps: int) -> bool:
+        """True if a batch of ``rows`` x ``steps`` control steps of ``backend`` should run here."""
+        ...
+
+    def resimulate(self, backend: str, configs: list[SimConfig], states: np.ndarray, actions: np.ndarray,
+                   previous: np.ndarray | None, model: np.ndarray) -> Prediction:
+        """``Resimulator(backend, configs).run(states, actions, previous, model)``, the same result."""
+        ...
+
+
+_EXECUTOR: BatchExecutor | None = None
+
+
+def active_executor() -> BatchExecutor | None:
+    """The executor ``Resimulator.run`` sends the batches it takes to (None: everything runs locally)."""
+    return _EXECUTOR
+
+
+@contextmanager
+def executing_on(executor: BatchExecutor) -> Iterator[BatchExecutor]:
+    """Within this block ``Resimulator.run`` hands ``executor`` the batches it ``takes``."""
+    global _EXECUTOR
+    previous, _EXECUTOR = _EXECUTOR, executor
+    try:
+        yield executor
+    finally:
+        _EXECUTOR = previous
 
 
 class Resimulator:
@@ -54,7 +91,7 @@ class Resimulator:
                 raise ValueError("all models of one Resimulator share physics_dt, substeps, action mode, "
                                  "whether the actions are hybrid commands and what the accelerometer reads")
         self.actuation = [Actuation.from_config(c) for c in self.configs]
-        self.threads = threads or max(1, min(parallel.usable_cpus(), 8))
+        self.threads = threads or max(1, min(usable_cpus(), 8))
         self._models: list | None = None   # MuJoCo models, compiled on first use
         self._sims: dict[int, object] = {}  # PyBullet simulators, built on first use
 
@@ -84,9 +121,9 @@ class Resimulator:
                          np.full((n, actions.shape[1], ACTION_DIM), np.nan), np.zeros(n, dtype=bool))
         if n == 0:
             return out
-        ray = parallel.active_executor()  # Ray (acn.sim.parallel): large batches in chunks, same result
-        if ray is not None and ray.takes(self.backend, n, actions.shape[1]):
-            return ray.resimulate(self.backend, self.configs, states, actions, previous, index)
+        executor = active_executor()  # Ray (acn.sim.parallel): large batches in chunks, same result
+        if executor is not None and executor.takes(self.backend, n, actions.shape[1]):
+            return executor.resimulate(self.backend, self.configs, states, actions, previous, index)
         if self.backend == "mujoco":
             self._run_mujoco(index, states, actions, previous, out)
             return out

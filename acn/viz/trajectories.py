@@ -15,7 +15,7 @@ import numpy as np
 
 from acn.datasets.reader import RecordedFrames
 from acn.errors import UserError
-from acn.sim.state import ACTION_NAMES, STATE_NAMES
+from acn.sim.state import STATE_NAMES
 
 # One colour per trajectory name (RGB, 0-255), used for meshes, markers and series alike.
 COLORS: dict[str, tuple[int, int, int]] = {
@@ -117,9 +117,9 @@ def recorded_episode(frames: RecordedFrames, episode: int) -> EpisodeView:
     """The recorded trajectories of one episode: source and target, or the measured robot."""
     rows = frames.rows(episode)
     frame = frames.frame[rows]
-    source_sim = frames.info["source"]["simulator"]
+    source_sim = frames.info.source.simulator
     if frames.paired:
-        target_sim = frames.info["target"]["simulator"]
+        target_sim = frames.info.target.simulator
         trajectories = [Trajectory("source", f"{source_sim} (source)", frames.state[rows], frame),
                         Trajectory("target", f"{target_sim} (target)", frames.target_state[rows], frame)]
         reference = "source"
@@ -141,12 +141,12 @@ def check_corrector_fits(config: dict, frames: RecordedFrames, directory: str) -
         raise UserError(f"corrector {directory} was fitted for other state channels ({unknown[0]!r} is not one of "
                         f"this dataset's)")
     actions = config.get("action_channels")
-    if actions is not None and list(actions) != list(frames.info.get("action_names", ACTION_NAMES)):
+    if actions is not None and list(actions) != list(frames.info.action_names):
         raise UserError(f"corrector {directory} was fitted for other action channels than {frames.path}")
     trained = (config.get("training_data") or {}).get("action_mode")
-    if trained is not None and trained != frames.info.get("action_mode"):
+    if trained is not None and trained != frames.info.action_mode:
         raise UserError(f"corrector {directory} was fitted on {trained}-mode actions; {frames.path} has "
-                        f"{frames.info.get('action_mode')}-mode actions")
+                        f"{frames.info.action_mode}-mode actions")
 
 
 def corrected_target(frames: RecordedFrames, episode: EpisodeView, corrector) -> Trajectory:

@@ -17,6 +17,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from acn.atomic import replacing
 from acn.datasets.reader import RecordedFrames, load_frames
 from acn.errors import UserError
 from acn.outputs import Output
@@ -135,18 +136,14 @@ def write_rrd(episodes: list[EpisodeView], out: Path, mesh_cell: float = DEFAULT
     if out.is_dir():
         raise UserError(f"--save {out} is a directory; give a file name ending in .rrd")
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.parent / f".{out.name}.partial-{os.getpid()}"
     rec = rr.RecordingStream(APPLICATION_ID)
-    try:
+    with replacing(out) as tmp:
         rec.save(tmp)
         # Active, not only default: a viewer keeps the last layout per application otherwise.
         rec.send_blueprint(build_blueprint(episodes), make_active=True, make_default=True)
         record(rec, episodes, mesh_cell)
         rec.flush()
         rec.disconnect()
-        os.replace(tmp, out)
-    finally:
-        tmp.unlink(missing_ok=True)
     return out
 
 
