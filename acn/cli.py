@@ -220,10 +220,12 @@ def collect_config_from_args(args: argparse.Namespace):
     from acn.sim.backends.base import physics_hz_for
 
     physics_hz = physics_hz_for(args.control_hz, args.physics_hz)
-    if args.corrector is not None:
+    if args.corrector is not None and args.target is not None:
+        from acn.corrector.card import TargetDescription
         from acn.corrector.corrector import load_for_target
 
-        load_for_target(args.corrector, [])  # the collected target is the simulator as is
+        # the collected target is the simulator as is
+        load_for_target(args.corrector, TargetDescription(args.target, args.action_mode, args.control_hz))
     sim = config_from_args(args, SimConfig(), _sim_flags(), physics_dt=1.0 / physics_hz,
                            substeps=physics_hz // args.control_hz)
     return config_from_args(args, _collect_defaults(), _collect_flags(), sim=sim,
@@ -341,9 +343,8 @@ def _fit_flags() -> dict[str, Flag]:
                              positive_float),
         "sensor_inputs": Flag("F also reads the contact and IMU readings (default: on for paper and mujoco-jacobian)"),
         "threads": Flag("re-simulation threads", positive_int),
-        "train_threads": Flag("torch threads in training on a CPU (default 0: whichever count is fastest, timed every "
-                              "few seconds while training; more threads are faster only on an otherwise idle machine)",
-                              nonneg_int),
+        "train_threads": Flag("torch threads in training on a CPU (0: torch's default, all cores; default 1: more "
+                              "threads are faster only on an otherwise idle machine)", nonneg_int),
         "cuda_graph": Flag("with --device cuda: replay each full-batch training step as one CUDA graph (default on)"),
         "calibrate": Flag("scale F by 0, 0.25, ... 1, whichever leaves the least one-step error on half of the held-out "
                           "episodes (default: on for inverse)"),
@@ -387,7 +388,7 @@ def fit_main(argv: list[str] | None = None) -> int:
         with _ray_executor(args, "acn-fit"):
             model, metrics = fit(args.datasets, cfg, log=lambda line: print(line, file=sys.stderr), target=target)
         path = save(model, metrics, args.out, overwrite=args.overwrite)
-        simulator = (model.config["training_data"]["target"] or {}).get("simulator")
+        simulator = model.card.training_data.target.name
         physics = shlex.join(["acn-diagnose", str(args.datasets[0]), "--side", "source", "--model",
                               str(args.model or simulator),
                               "--auto", "--closed-loop", "4", "--corrector", str(path)]) \
@@ -859,11 +860,14 @@ def diagnose_main(argv: list[str] | None = None) -> int:
 
             robot_config(args.measured, data, args.side, model, args.closed_loop, args.closed_loop_seconds,
                          args.corrector)
+        from acn.corrector.card import TargetDescription
         from acn.corrector.corrector import load_for_target
 
+        target = TargetDescription(model.backend, data.control.action_mode, round(1.0 / data.control.control_dt, 9),
+                                   tuple(e.to_json() for e in model.effects))
         for corrector in (model.corrector, args.corrector, args.explain_corrector):
-            if corrector:  # each is applied to the model as given
-                load_for_target(corrector, [e.to_json() for e in model.effects])
+            if corrector:  # each is applied to the model as given, driven as the robot was
+                load_for_target(corrector, target)
         from tqdm import tqdm
 
         with _ray_executor(args, "acn-diagnose"), tqdm(total=100, file=sys.stderr, bar_format="{l_bar}{bar}| {elapsed} {postfix}",

@@ -2,22 +2,23 @@
 
 baseline_samples_per_s   the paper authors' loop: a per-sample torch Dataset of tensors and a
                          DataLoader (batch 256, shuffle), ActionNet + JacobianNet, their loss
-                         (J delta_a by torch.bmm, autograd), Adam
-fit_samples_per_s        acn-fit's loop (acn.corrector.fit.train): tensors held whole, batches gathered
-                         into preallocated buffers, the networks' forward and backward written out on
-                         one flat parameter buffer (acn.corrector.backprop: the two first layers as one
-                         matmul, fused Adam), bf16 weights where the CPU has native bf16 (fit_bf16=1),
-                         the loss's gradient written out
-fit_threads              the torch thread count acn-fit's loop ended on: by default it times one
-                         thread against all of them every few seconds and runs on the faster
-                         (acn.corrector.threads.AdaptiveThreads)
-fit_speedup              fit / baseline, each on its default threads (the baseline on torch's,
-                         all cores); target >= 2.5
-fit_1_thread_samples_per_s  acn-fit's loop held on one thread (--train-threads 1)
+                         (J delta_a by torch.bmm, autograd), Adam, float32
+fit_samples_per_s        acn-fit's loop (acn.corrector.train): plain PyTorch (autograd,
+                         torch.optim.Adam(fused=True)) on tensors held whole, a batch one index
+                         gather, the matmuls in bf16 under torch.autocast where the CPU has native
+                         bf16 (fit_bf16=1), the loss summed on the device
+fit_threads              the torch thread count acn-fit's loop ran on (--train-threads, default 1)
+fit_speedup              fit / baseline, each on its default threads (acn-fit: one; the baseline:
+                         torch's, all cores; on a busy machine the baseline's threads wait on each other)
+fit_1_thread_samples_per_s  acn-fit's loop on one thread (--train-threads 1)
 fit_speedup_1_thread     fit_1_thread / the baseline on one thread too (equal resources, one core)
-fit_adaptive_vs_1_thread fit / fit_1_thread: what choosing the count gains (or costs) here
+fit_fp32_1_thread_samples_per_s  acn-fit's loop on one thread in float32 (--precision fp32)
+fit_speedup_fp32_1_thread  fit_fp32_1_thread / the baseline on one thread: the loop alone, same precision
+fit_all_threads_samples_per_s  acn-fit's loop on torch's default threads (--train-threads 0)
+fit_speedup_all_threads  fit_all_threads / the baseline (equal resources, all cores)
+fit_all_threads_vs_1_thread  what all cores gain (or cost) here over one thread
 inverse_samples_per_s    acn-fit's loop with inverse's network and batch (512 wide, batch 64; the
-                         default variant, what `make demo` trains), adaptive and on one thread
+                         default variant, what `make demo` trains): its default, one thread, all threads
 fit_gflops               training FLOP/s of acn-fit's loop (forward + backward ~ 3x forward)
 matmul_gflops            this machine's float32 matmul rate on the network's widest layer shape
 matmul_bf16_gflops       the same in bf16
@@ -56,9 +57,11 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from acn.corrector.acn import INPUT_CHANNELS, OUTPUT_CHANNELS
-from acn.corrector.corrector import Corrector, default_config
-from acn.corrector.fit import FitConfig, Split, train
-from acn.corrector.threads import torch_threads
+from acn.corrector.card import CorrectorCard
+from acn.corrector.config import FitConfig
+from acn.corrector.corrector import Corrector, torch_threads
+from acn.corrector.rows import Split
+from acn.corrector.train import train
 
 N_IN, N_OUT, N_ACT = len(INPUT_CHANNELS) + 12, len(OUTPUT_CHANNELS), 12
 
@@ -77,8 +80,7 @@ class PerSampleDataset(Dataset):
 
 
 def paper_loss(delta_a: torch.Tensor, jacobian: torch.Tensor, residual: torch.Tensor, lambda_l1: float):
-    """The paper's loss as the authors compute it: J delta_a by torch.bmm, autograd for the rest
-    (acn_loss writes its gradient out)."""
+    """The paper's loss as the authors compute it: J delta_a by torch.bmm, autograd for the rest."""
     predicted = torch.bmm(jacobian, delta_a.unsqueeze(-1)).squeeze(-1)
     fit = (predicted - residual).pow(2).mean()
     return fit + lambda_l1 * delta_a.abs().sum(dim=1).mean(), fit
@@ -131,7 +133,7 @@ def ours(cfg: FitConfig, model: Corrector, split: Split) -> tuple[float, int]:
 
 
 def inverse_split(x: torch.Tensor, r: torch.Tensor) -> tuple[Corrector, Split]:
-    model = Corrector(default_config("inverse", 512, 2))
+    model = Corrector(CorrectorCard.untrained("inverse", 512, 2))
     n_in = model.net.action_net[0].in_features
     return model, Split(x[:, :n_in].contiguous(), r, torch.randn(len(x), N_OUT, N_ACT), torch.randn(len(x), N_ACT),
                         torch.ones(N_ACT))
@@ -161,22 +163,30 @@ def main() -> None:
     x, r = torch.randn(args.samples, N_IN), torch.randn(args.samples, N_OUT)
     if args.device != "cpu":
         return gpu(x, r, args.epochs, args.device)
-    make = lambda: Corrector(default_config("paper", 256, 2))  # noqa: E731
-    cfg = FitConfig(variant="paper", epochs=args.epochs)  # the paper's network and batch 256
+    make = lambda: Corrector(CorrectorCard.untrained("paper", 256, 2))  # noqa: E731
+    cfg = FitConfig(variant="paper", epochs=args.epochs)  # the paper's network and batch 256, one thread
+    everything = torch.get_num_threads()  # torch's default: all cores
     with busy_cores(args.busy):
         # Each loop once on a small slice first, on every count: the kernels' one-time set-up
-        # (oneDNN's bf16 primitives, per thread count) would otherwise fall on whichever runs first.
-        baseline(make(), x[:2048], r[:2048], 1)
-        for threads in (1, torch.get_num_threads()):
-            ours(replace(cfg, epochs=1, train_threads=threads), make(), Split(x[:2048], r[:2048], None))
-        base = baseline(make(), x, r, args.epochs)
+        # (oneDNN's primitives, per thread count) would otherwise fall on whichever runs first.
+        for threads in (1, everything):
+            with torch_threads(threads):
+                baseline(make(), x[:2048], r[:2048], 1)
+            for precision in ("auto", "fp32"):
+                ours(replace(cfg, epochs=1, train_threads=threads, precision=precision), make(),
+                     Split(x[:2048], r[:2048], None))
+        # One thread, then all: each pair of loops back to back, as the machine's load drifts.
         with torch_threads(1):
             base_1 = baseline(make(), x, r, args.epochs)
-        fit, threads = ours(cfg, make(), Split(x, r, None))
         fit_1, _ = ours(replace(cfg, train_threads=1), make(), Split(x, r, None))
+        fit_fp32_1, _ = ours(replace(cfg, train_threads=1, precision="fp32"), make(), Split(x, r, None))
+        base = baseline(make(), x, r, args.epochs)
+        fit, threads = ours(cfg, make(), Split(x, r, None))
+        fit_all, _ = ours(replace(cfg, train_threads=0), make(), Split(x, r, None))
         inverse = FitConfig(variant="inverse", epochs=1)  # its defaults: 512 wide, batch 64, cosine
         inv, _ = ours(inverse, *inverse_split(x, r))
         inv_1, _ = ours(replace(inverse, train_threads=1), *inverse_split(x, r))
+        inv_all, _ = ours(replace(inverse, train_threads=0), *inverse_split(x, r))
     gflops = fit * flops_per_sample(make()) / 1e9
     peak = matmul_gflops()
     print(f"busy_processes={args.busy}")
@@ -187,9 +197,14 @@ def main() -> None:
     print(f"baseline_1_thread_samples_per_s={base_1:.0f}")
     print(f"fit_1_thread_samples_per_s={fit_1:.0f}")
     print(f"fit_speedup_1_thread={fit_1 / base_1:.3f}")
-    print(f"fit_adaptive_vs_1_thread={fit / fit_1:.3f}")
+    print(f"fit_fp32_1_thread_samples_per_s={fit_fp32_1:.0f}")
+    print(f"fit_speedup_fp32_1_thread={fit_fp32_1 / base_1:.3f}")
+    print(f"fit_all_threads_samples_per_s={fit_all:.0f}")
+    print(f"fit_speedup_all_threads={fit_all / base:.3f}")
+    print(f"fit_all_threads_vs_1_thread={fit_all / fit_1:.3f}")
     print(f"inverse_samples_per_s={inv:.0f}")
     print(f"inverse_1_thread_samples_per_s={inv_1:.0f}")
+    print(f"inverse_all_threads_samples_per_s={inv_all:.0f}")
     print(f"fit_gflops={gflops:.1f}")
     print(f"matmul_gflops={peak:.1f}")
     print(f"fit_fraction_of_matmul={gflops / peak:.3f}")
@@ -207,7 +222,7 @@ def gpu(x: torch.Tensor, r: torch.Tensor, epochs: int, device: str) -> None:
     """The authors' loop and acn-fit's (graphed and eager) on the GPU, same data and network."""
     if not torch.cuda.is_available():
         raise SystemExit("--device cuda: no CUDA device is available")
-    make = lambda: Corrector(default_config("paper", 256, 2))  # noqa: E731
+    make = lambda: Corrector(CorrectorCard.untrained("paper", 256, 2))  # noqa: E731
     n = len(x)
 
     def ours_gpu(cfg: FitConfig, model: Corrector, split: Split) -> float:

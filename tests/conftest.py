@@ -16,7 +16,7 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 # them): `make test` runs two processes on two cores, and a thread per core in each spins against the other
 # process. numpy's least squares in the data checks: 8 s a diagnosis with two threads, 0.1 s with one; torch's
 # training loops likewise (test_fit: 51 s with one thread, 90 s with two; test_ppo 36 s, 69). Where a test needs
-# threads it asks for them (AdaptiveThreads, --train-threads; MuJoCo's rollouts keep theirs).
+# threads it asks for them (--train-threads; MuJoCo's rollouts keep theirs).
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 

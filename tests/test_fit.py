@@ -60,7 +60,7 @@ def inverse(paired):
 
 def test_inverse_learns_the_labels_and_closes_part_of_the_one_step_gap(inverse):
     model, m = inverse
-    assert FitConfig().variant == "inverse" and model.config["variant"] == "inverse"
+    assert FitConfig().variant == "inverse" and model.card.variant == "inverse"
     assert m["rows"]["filter_percentile"] == 100.0  # same-state targets need no filter
     v = m["val_objective"]
     assert v["label_mse"] < 0.8 * v["label_mse_no_correction"]
@@ -80,8 +80,9 @@ def test_calibration_shrinks_a_harmful_corrector(inverse, paired):
 
     from acn.datasets.reader import load_paired
     from acn.corrector.evaluate import typical_spread
-    from acn.corrector.fit import calibrate, same_state_rows
+    from acn.corrector.fit import calibrate
     from acn.corrector.labels import SolveConfig
+    from acn.corrector.rows import same_state_rows
     from acn.sim.resim import Resimulator
 
     model = copy.deepcopy(inverse[0])
@@ -92,7 +93,7 @@ def test_calibration_shrinks_a_harmful_corrector(inverse, paired):
         rows = same_state_rows(d, resim, 1 / typical_spread(), SolveConfig(iterations=1, broyden=0))
         out = calibrate(model, resim, rows, 1 / typical_spread())
     assert out["scale"] == 0.0 and np.allclose(model.correct(d.state[:3], d.action[:3]), d.action[:3])
-    assert len(model.config["delta_scale"]) == 12
+    assert model.card.delta_scale == tuple(model.delta_scale.tolist()) and len(model.card.delta_scale) == 12
 
 
 def test_inverse_reports_rounds_and_oracles(inverse):
@@ -134,119 +135,52 @@ def test_runs_are_compared_episode_by_episode():
     assert wider["change"]["reward_gap"] == "wider" and wider["new_falls"] == 0
 
 
-def test_acn_loss_gradient_is_autograds():
-    """acn_loss's written-out gradient (both outputs, every input) equals autograd's through the formula."""
-    from acn.corrector.acn import acn_loss
-
-    gen = torch.Generator().manual_seed(0)
-    d, j, r = (torch.randn(*shape, dtype=torch.float64, generator=gen) for shape in ((6, 12), (6, 33, 12), (6, 33)))
-    d[0, :3] = 0.0  # |delta_a| at 0, as at the start of training
-    assert torch.autograd.gradcheck(lambda *t: acn_loss(*t, 0.01), (d.requires_grad_(), j.requires_grad_(),
-                                                                    r.requires_grad_()))
-    plain = torch.bmm(j, d.unsqueeze(-1)).squeeze(-1).sub(r).pow(2).mean()
-    total, fit = acn_loss(d, j, r, 0.01)
-    assert torch.allclose(fit, plain) and torch.allclose(total, plain + 0.01 * d.abs().sum(1).mean())
-
-
-@pytest.mark.parametrize("variant,layers", [("paper", 2), ("inverse", 3)])
-def test_written_out_backprop_gives_autograds_gradients(variant, layers):
-    """FlatMLPs (both networks' first layers as one matmul, gradients written into one flat
-    buffer) gives autograd's loss and gradient for every parameter, in float32."""
-    import copy
-
-    from acn.corrector.acn import acn_loss
-    from acn.corrector.backprop import FlatMLPs
-    from acn.corrector.corrector import default_config
-
-    torch.manual_seed(0)
-    model = Corrector(default_config(variant, 24, layers))
-    for p in model.net.parameters():  # the output layer starts at zero: make every gradient non-trivial
-        torch.nn.init.normal_(p, std=0.3)
-    ref = copy.deepcopy(model.net)
-    x, r = torch.randn(20, model.net.action_net[0].in_features), torch.randn(20, 33)
-
-    def loss_of(out):
-        if len(out) == 2:
-            return acn_loss(out[0], out[1].view(-1, 33, 12), r, 0.01)[0]
-        return (out[0] - r[:, :12]).pow(2).mean()
-
-    delta_a, jac = ref(x)
-    expected = loss_of([delta_a] + ([jac.flatten(1)] if jac is not None else []))
-    expected.backward()
-    nets = [n for n in (model.net.action_net, model.net.jacobian_net) if n is not None]
-    flat = FlatMLPs(nets, torch.float32)
-    assert torch.allclose(flat.step(x, loss_of), expected.detach())
-    names = {id(p): n for n, p in model.net.named_parameters()}
-    grads = dict(ref.named_parameters())
-    assert len(flat.params) == len(grads)
-    for p, g in zip(flat.params, flat._views(flat.master.grad)):
-        assert torch.allclose(g, grads[names[id(p)]].grad, atol=1e-6), names[id(p)]
-    with pytest.raises(ValueError, match="Linear-SiLU"):
-        FlatMLPs([torch.nn.Sequential(torch.nn.Linear(3, 4), torch.nn.ReLU(), torch.nn.Linear(4, 2))], torch.float32)
-
-
-def test_adam_step_called_directly_gives_torch_adams_weights(monkeypatch):
-    """AdamStep (the fused kernel called without the optimiser's Python) ends on the weights of
-    torch.optim.Adam(fused=True).step(), to the bit, with the learning rate changed between steps
-    (a schedule); where the kernel refuses its arguments (another torch) it goes through step()
-    from then on, to the same weights; an optimiser it cannot call directly goes through step()."""
-    from acn.corrector.backprop import AdamStep
-
-    gen = torch.Generator().manual_seed(3)
-    start = torch.randn(1000, generator=gen)
-    grads = [torch.randn(1000, generator=gen) for _ in range(6)]
-
-    def train(kind: str) -> torch.Tensor:
-        p = start.clone()
-        p.grad = torch.empty_like(p)
-        opt = torch.optim.Adam([p], lr=1e-2, fused=True)
-        step = opt.step if kind == "step" else AdamStep(opt)
-        for k, g in enumerate(grads):
-            opt.param_groups[0]["lr"] = 1e-2 * (1.0 - 0.1 * k)
-            p.grad.copy_(g)
-            step()
-        assert kind != "refused" or not step.direct
-        return p
-
-    reference = train("step")
-    assert torch.equal(train("direct"), reference) and not torch.equal(reference, start)
-    kernel, calls = torch._fused_adam_, []
-
-    def refuses_once(*args, **kwargs):  # the first direct call, as a torch with another signature would
-        calls.append(1)
-        if len(calls) == 2:  # the first call is step()'s own, which creates the state
-            raise TypeError("_fused_adam_() got an unexpected keyword argument")
-        return kernel(*args, **kwargs)
-
-    monkeypatch.setattr(torch, "_fused_adam_", refuses_once)
-    assert torch.equal(train("refused"), reference)
-    p = start.clone()
-    assert AdamStep(torch.optim.Adam([p], lr=1e-2, fused=True)).direct
-    assert not AdamStep(torch.optim.Adam([p], lr=1e-2)).direct  # unfused: step()
-    assert not AdamStep(torch.optim.Adam([p], lr=1e-2, fused=True, amsgrad=True)).direct
-
-
 @pytest.mark.parametrize("precision", ["fp32", "bf16"])
-def test_training_leaves_separate_float32_parameters(precision, tmp_path):
-    """Training uses one flat (bf16) buffer; afterwards each parameter is its own float32 tensor, the
-    state_dict keys are unchanged and the corrector saves and loads."""
-    from acn.corrector.corrector import default_config
-    from acn.corrector.fit import Split, train
+def test_training_leaves_a_float32_corrector_that_saves_and_loads(precision, tmp_path):
+    """After training (bf16: matmuls under torch.autocast) each parameter is float32 without a
+    gradient, the state_dict keys are unchanged, the network is in eval mode and the corrector
+    saves and loads."""
+    from acn.corrector.card import CorrectorCard
+    from acn.corrector.rows import Split
+    from acn.corrector.train import train
 
-    if precision == "bf16" and not torch.ops.mkldnn._is_mkldnn_bf16_supported():
-        pytest.skip("no native bf16")
-    model = Corrector(default_config("paper", 32, 2))
+    model = Corrector(CorrectorCard.untrained("paper", 32, 2))
     keys = list(model.state_dict())
     x, r = torch.randn(300, 52), torch.randn(300, 33)
     history = train(model, Split(x, r, None), FitConfig(variant="paper", epochs=3, batch_size=64, precision=precision))
     assert len(history) == 3 and all(np.isfinite(h["train_loss"]) for h in history)
-    params = list(model.parameters())
-    assert all(p.dtype == torch.float32 and p.grad is None for p in params)
-    assert len({p.untyped_storage().data_ptr() for p in params}) == len(params)
+    assert all(p.dtype == torch.float32 and p.grad is None for p in model.parameters())
     assert list(model.state_dict()) == keys and not model.net.training
     model.freeze().save(tmp_path)
     s, a = np.zeros((2, 43)), np.full((2, 12), 0.1)
     np.testing.assert_array_equal(Corrector.load(tmp_path).correct(s, a), model.correct(s, a))
+
+
+@pytest.mark.parametrize("variant", ["paper", "mujoco-jacobian", "inverse"])
+def test_training_learns_and_is_reproducible_from_its_seed(variant):
+    """Each variant's loss falls over the epochs (cosine schedule and partial batches included),
+    and the same seed gives the same weights."""
+    from acn.corrector.card import CorrectorCard
+    from acn.corrector.rows import Split
+    from acn.corrector.train import train
+
+    gen = torch.Generator().manual_seed(1)
+    n = 300
+    x, r = torch.randn(n, 52, generator=gen), torch.randn(n, 33, generator=gen)
+    jac = torch.randn(n, 33, 12, generator=gen) if variant != "paper" else None
+    label = 0.5 * x[:, :12] + 0.1 * torch.randn(n, 12, generator=gen) if variant == "inverse" else None
+    cfg = FitConfig(variant=variant, epochs=6, hidden=32, batch_size=64, lr_schedule="cosine", precision="fp32",
+                    jacobian_weight=0.1 if variant == "inverse" else 0.0)
+    weights, histories = [], []
+    for _ in range(2):
+        torch.manual_seed(0)
+        model = Corrector(CorrectorCard.untrained(variant, 32, 2))
+        n_in = model.net.action_net[0].in_features
+        split = Split(x[:, :n_in].contiguous(), r, jac, label, torch.ones(12) if label is not None else None)
+        histories.append([h["train_loss"] for h in train(model, split, cfg)])
+        weights.append(torch.cat([p.detach().flatten() for p in model.parameters()]))
+    assert histories[0][-1] < histories[0][0]
+    assert histories[0] == histories[1] and torch.equal(weights[0], weights[1])
 
 
 def test_save_load_round_trip_gives_identical_corrections(fitted, paired):
@@ -361,6 +295,30 @@ def test_corrupt_or_foreign_model_files_give_clear_errors(fitted, tmp_path):
         Corrector.load(foreign)
     with pytest.raises(UserError, match="not a corrector directory"):
         Corrector.load(tmp_path)
+    card = json.loads((fitted[0] / "config.json").read_text())
+    (foreign / "config.json").write_text(json.dumps({**card, "network": {**card["network"], "hidden": "wide"}}))
+    with pytest.raises(UserError, match="'network.hidden' must be a whole number > 0, got \"wide\""):
+        Corrector.load(foreign)
+
+
+def test_a_corrector_is_refused_on_a_target_it_was_not_fitted_for(fitted):
+    """One check of the card against the target, each difference in one line of the same form."""
+    from acn.corrector.card import TargetDescription
+
+    card = Corrector.load(fitted[0]).card
+    here = TargetDescription("mujoco", "position", 50.0)
+    card.refuse_unless_fits(here, "C")
+    card.refuse_unless_fits(replace(here, effects=None), "C")  # the target takes the corrector's own effects
+    for other, message in [
+        (replace(here, simulator="pybullet"), "fitted for a mujoco target; here the target is pybullet"),
+        (replace(here, action_mode="torque"), "fitted for position-mode actions; here the actions are torque-mode"),
+        (replace(here, control_hz=100.0), "fitted for 50 Hz control; here the control rate is 100 Hz"),
+        (replace(here, effects=({"name": "payload", "params": {}},)),
+         "fitted for a target with nothing added; here the target has payload added"),
+    ]:
+        with pytest.raises(UserError) as e:
+            card.refuse_unless_fits(other, "C")
+        assert str(e.value).startswith(f"corrector C was {message}") and "\n" not in str(e.value), str(e.value)
 
 
 def _fit_cli(*args: str) -> subprocess.CompletedProcess:
@@ -476,6 +434,7 @@ def test_physics_names_the_pybullet_mujoco_gap_a_stiffer_ground(paired):
 def test_a_corrector_fitted_on_top_of_a_physical_model_learns_what_it_leaves(inverse, paired, tmp_path, capsys):
     """acn-fit --model: the target gets the model's effects for labels, evaluation and rounds; the
     corrector records them and is refused on a target without them."""
+    from acn.corrector.card import TargetDescription
     from acn.corrector.corrector import load_for_target
     from acn.sim.effects import AppliedEffect, Model, get_effect
 
@@ -483,7 +442,8 @@ def test_a_corrector_fitted_on_top_of_a_physical_model_learns_what_it_leaves(inv
     model, m = fit([paired], FitConfig(**{**FAST, "epochs": 30, "eval_seconds": 2.0, **LABELS}), log=lambda s: None,
                    target=softer)
     effects = [{"name": "ground_softness", "params": {"timeconst": 0.004}}]
-    assert model.target_effects == effects and inverse[0].target_effects == []
+    assert list(model.card.training_data.target_effects) == effects
+    assert inverse[0].card.training_data.target_effects == ()
     # The same held-out rows and starts as the nominal fit: the stiffer ground alone removes part
     # of the one-step gap (make demo's data: 54 %), and the model runs in the closed loop.
     assert m["one_step"]["error_no_correction"] < 0.9 * inverse[1]["one_step"]["error_no_correction"]
@@ -491,9 +451,10 @@ def test_a_corrector_fitted_on_top_of_a_physical_model_learns_what_it_leaves(inv
     assert set(runs) == {"uncorrected", "corrected", "same_state_oracle", "tracking_oracle"}
     assert runs["uncorrected"]["divergence"] != pytest.approx(nominal["uncorrected"]["divergence"])
     path = save(model, m, tmp_path / "hybrid")
-    assert load_for_target(path, effects).target_effects == effects
+    softer_target = TargetDescription("mujoco", "position", 50.0, tuple(effects))
+    assert list(load_for_target(path, softer_target).card.training_data.target_effects) == effects
     with pytest.raises(UserError, match="fitted for a target with ground_softness added; here the target has nothing"):
-        load_for_target(path, [])
+        load_for_target(path, replace(softer_target, effects=()))
     # Applied where the target has no such effect: one line, exit 2 (acn-collect's target is the simulator as is).
     from acn.cli import collect_main
 
@@ -504,46 +465,3 @@ def test_a_corrector_fitted_on_top_of_a_physical_model_learns_what_it_leaves(inv
         fit([paired], FitConfig(variant="paper", **FAST), log=lambda s: None, target=softer)
     with pytest.raises(UserError, match="pybullet model"):
         fit([paired], FitConfig(**FAST), log=lambda s: None, target=Model("pybullet"))
-
-
-@pytest.mark.parametrize("variant", ["paper", "mujoco-jacobian", "inverse"])
-@pytest.mark.parametrize("dtype", [torch.float32, torch.bfloat16])
-def test_the_written_out_loss_trains_the_weights_autograd_trains(variant, dtype):
-    """Twenty Adam steps (full and partial batches) with the loss's gradient written out
-    (``_batch_loss_and_grads``) and through autograd (``_batch_loss``) end on the same weights,
-    to the bit."""
-    from acn.corrector.backprop import FlatMLPs
-    from acn.corrector.corrector import default_config
-    from acn.corrector.fit import Split, _batch_loss, _batch_loss_and_grads, written_out
-
-    cfg = FitConfig(variant=variant)
-    assert written_out(cfg, variant == "inverse") and not written_out(replace(cfg, jacobian_weight=1.0), True)
-    gen = torch.Generator().manual_seed(1)
-    n = 300
-    x = torch.randn(n, 52, generator=gen)  # each network reads its first n_in columns
-    labelled = variant == "inverse"
-    split = Split(x, torch.randn(n, 33, generator=gen),
-                  torch.randn(n, 33, 12, generator=gen) if variant != "paper" else None,
-                  torch.randn(n, 12, generator=gen) if labelled else None, torch.ones(12) if labelled else None)
-    weights = []
-    for closed in (True, False):
-        torch.manual_seed(0)
-        model = Corrector(default_config(variant, 32, 2))
-        n_in = model.net.action_net[0].in_features
-        net = model.net
-        flat = FlatMLPs([m for m in (net.action_net, net.jacobian_net) if m is not None], dtype)
-        opt = torch.optim.Adam([flat.master], lr=1e-2, fused=True)
-        for k in range(20):
-            idx = torch.arange(k * 37, k * 37 + (64 if k % 3 else 29)) % n
-            batch = replace(split, **{f: getattr(split, f)[idx] for f in ("x", "residual", "jacobian", "label")
-                                      if getattr(split, f) is not None})
-            batch = replace(batch, x=batch.x[:, :n_in].to(dtype))
-            if closed:
-                flat.step(batch.x, grads_of=lambda out: _batch_loss_and_grads(out, batch, cfg, net))
-            else:
-                flat.step(batch.x, lambda out: _batch_loss(out[0], out[1].view(len(idx), 33, 12) if len(out) > 1
-                                                           else None, batch, cfg, report_fit=False)[0])
-            opt.step()
-            flat.sync()
-        weights.append(flat.master.detach().clone())
-    assert torch.equal(weights[0], weights[1])

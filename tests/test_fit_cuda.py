@@ -9,8 +9,11 @@ from dataclasses import replace
 import pytest
 import torch
 
-from acn.corrector.corrector import Corrector, default_config
-from acn.corrector.fit import FitConfig, Split, train
+from acn.corrector.card import CorrectorCard
+from acn.corrector.config import FitConfig
+from acn.corrector.corrector import Corrector
+from acn.corrector.rows import Split
+from acn.corrector.train import train
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
 
@@ -27,15 +30,15 @@ def _split(variant: str, n: int, n_in: int) -> Split:
 @pytest.mark.parametrize("variant", ["paper", "inverse"])
 def test_graphed_steps_train_as_eager_ones(variant, precision):
     # 1000 rows: full batches replayed, the last partial batch of each epoch launched eagerly;
-    # inverse: its cosine learning rate, read by the graph from a tensor. bf16: weights and
-    # matmuls in bf16, Adam on the float32 master (the same kernels either way).
+    # inverse: its cosine learning rate, read by the graph from a tensor. bf16: matmuls in bf16
+    # under torch.autocast, float32 weights and Adam (the same kernels either way).
     if precision == "bf16" and not torch.cuda.is_bf16_supported():
         pytest.skip("no bf16 on this GPU")
     cfg = FitConfig(variant=variant, epochs=3, device="cuda", precision=precision, hidden=64,
                     batch_size=128)
     params, losses = {}, {}
     for graphed in (True, False):
-        model = Corrector(default_config(variant, 64, 2))
+        model = Corrector(CorrectorCard.untrained(variant, 64, 2))
         torch.manual_seed(0)
         for p in model.net.parameters():
             torch.nn.init.normal_(p, std=0.1)

@@ -21,7 +21,8 @@ from hypothesis import strategies as st
 from acn.measurements.data import load_measurements
 from acn.datasets.reader import load_frames, load_paired
 from acn.errors import UserError
-from acn.corrector.corrector import CONFIG, WEIGHTS, Corrector, default_config
+from acn.corrector.card import CorrectorCard
+from acn.corrector.corrector import CONFIG, WEIGHTS, Corrector
 from acn.sim.effects import Model
 
 SETTINGS = settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -104,7 +105,7 @@ def test_truncated_or_damaged_parquet_files(small_dataset, data, cut, flips):
 @pytest.fixture(scope="module")
 def corrector_dir(tmp_path_factory) -> Path:
     d = tmp_path_factory.mktemp("corrector")
-    Corrector(default_config("inverse", 16, 2)).save(d)
+    Corrector(CorrectorCard.untrained("inverse", 16, 2)).save(d)
     return d
 
 

@@ -217,7 +217,7 @@ def _torque_corrector(out, tmp_path):
     ("missing_corrector_train", "does not exist"),
     ("missing_corrector_eval", "does not exist"),
     ("schema", "different state schema"),
-    ("torque_corrector", "fitted on torque actions"),
+    ("torque_corrector", "fitted for torque-mode actions"),
     ("existing_out", "exists"),
     ("resume_nothing", "no checkpoint"),
     ("eval_with_training_setting", "not --n-steps"),

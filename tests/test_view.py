@@ -28,9 +28,10 @@ def make_corrector(directory, bias: float = 0.0, **config_changes):
     ``config_changes`` are written into its config.json (to make foreign correctors)."""
     import json
 
-    from acn.corrector.corrector import CONFIG, Corrector, default_config
+    from acn.corrector.card import CorrectorCard
+    from acn.corrector.corrector import CONFIG, Corrector
 
-    model = Corrector(default_config("mujoco-jacobian", hidden=16, layers=1))
+    model = Corrector(CorrectorCard.untrained("mujoco-jacobian", hidden=16, layers=1))
     with torch.no_grad():
         model.net.action_net[-1].bias.fill_(bias)
     directory.mkdir()

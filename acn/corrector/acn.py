@@ -81,63 +81,13 @@ class ActionCorrectionNetwork(nn.Module):
         return delta_a, self.jacobian_net(x).view(-1, self.n_out, self.n_action)
 
 
-class _ACNLoss(torch.autograd.Function):
-    """``acn_loss`` with its gradient written out. Through autograd (a bmm on many tiny matrices,
-    whose backward is slow on CPU, and a dozen small nodes) the loss took ~15 % of a CPU training
-    step; here J delta_a is one bmm and the backward two broadcast products (~20 % less)."""
-
-    @staticmethod
-    def forward(ctx, delta_a: torch.Tensor, jacobian: torch.Tensor, residual: torch.Tensor,
-                lambda_l1: float) -> tuple[torch.Tensor, torch.Tensor]:
-        err = torch.bmm(jacobian, delta_a.unsqueeze(-1)).squeeze(-1).sub_(residual)
-        fit = err.pow(2).mean()
-        ctx.save_for_backward(delta_a, jacobian, err)
-        ctx.lambda_l1 = lambda_l1
-        return fit + lambda_l1 * delta_a.abs().sum() / len(delta_a), fit
-
-    @staticmethod
-    def backward(ctx, g_total: torch.Tensor, g_fit: torch.Tensor):
-        delta_a, jacobian, err = ctx.saved_tensors
-        g_err = err * ((g_total + g_fit) * (2.0 / err.numel()))
-        need_delta, need_jac, need_res, _ = ctx.needs_input_grad
-        g_delta = _delta_gradient(delta_a, jacobian, g_err, g_total * ctx.lambda_l1) if need_delta else None
-        g_jac = g_err.unsqueeze(-1) * delta_a.unsqueeze(1) if need_jac else None
-        return g_delta, g_jac, -g_err if need_res else None, None
-
-
-def _delta_gradient(delta_a: torch.Tensor, jacobian: torch.Tensor, g_err: torch.Tensor, l1) -> torch.Tensor:
-    """d loss / d delta_a from d loss / d err; d|x|/dx = sign(x), 0 at 0 as autograd's."""
-    return (g_err.unsqueeze(-1) * jacobian).sum(1) + delta_a.sign() * (l1 / len(delta_a))
-
-
 def acn_loss(delta_a: torch.Tensor, jacobian: torch.Tensor, residual: torch.Tensor,
              lambda_l1: float) -> tuple[torch.Tensor, torch.Tensor]:
     """(total, residual term): mean_c (J delta_a - delta_s)^2 + lambda * mean_batch |delta_a|_1."""
-    return _ACNLoss.apply(delta_a, jacobian, residual, lambda_l1)
+    fit = (torch.bmm(jacobian, delta_a.unsqueeze(-1)).squeeze(-1) - residual).pow(2).mean()
+    return fit + lambda_l1 * delta_a.abs().sum() / len(delta_a), fit
 
 
 def regression_loss(delta_a: torch.Tensor, label: torch.Tensor) -> torch.Tensor:
     """mean over rows and channels of (delta_a - delta_a*)^2, both scaled by the labels' spread."""
     return (delta_a - label).pow(2).mean()
-
-
-# ----- the same losses with their gradients, without autograd -------------------------------------
-# A training step on a CPU spends as long in autograd's bookkeeping for the loss (leaves, graph,
-# engine) as in the loss itself: ~390 us against ~200 us for the paper's loss at batch 256. These
-# return the loss and its gradient with respect to the networks' outputs directly, by the same
-# operations as the backward passes above, so training through them is bit-identical
-# (``tests/test_fit.py``).
-def acn_loss_and_grad(delta_a: torch.Tensor, jacobian: torch.Tensor, residual: torch.Tensor,
-                      lambda_l1: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """(acn_loss's total, d total / d delta_a, d total / d jacobian)."""
-    err = torch.bmm(jacobian, delta_a.unsqueeze(-1)).squeeze(-1).sub_(residual)
-    total = err.pow(2).mean() + lambda_l1 * delta_a.abs().sum() / len(delta_a)
-    l1 = torch.full((), lambda_l1, dtype=err.dtype, device=err.device)  # as the backward's g_total * lambda
-    g_err = err.mul_(2.0 / err.numel())
-    return total, _delta_gradient(delta_a, jacobian, g_err, l1), g_err.unsqueeze(-1) * delta_a.unsqueeze(1)
-
-
-def regression_loss_and_grad(delta_a: torch.Tensor, label: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """(regression_loss, d loss / d delta_a): autograd's (1 / n) (2 (delta_a - delta_a*))."""
-    diff = delta_a - label
-    return diff.pow(2).mean(), (diff * 2.0).mul_(1.0 / diff.numel())

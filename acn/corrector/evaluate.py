@@ -47,7 +47,7 @@ import numpy as np
 
 from acn.datasets.reader import state_difference
 from acn.corrector.acn import OUTPUT_CHANNELS
-from acn.corrector.threads import torch_threads
+from acn.corrector.corrector import torch_threads
 from acn.corrector.labels import SolveConfig
 from acn.corrector.oracle import OUTPUT_INDEX, SameStateOracle, TrackingOracle
 from acn.sim.collector import CollectConfig, Episode, PairedRollout, Trace, fallen

@@ -61,8 +61,8 @@ from acn.errors import UserError
 from acn.jsonfile import strict_json
 from acn.outputs import Output, json_with_format, refuse_foreign
 from acn.corrector.acn import INPUT_CHANNELS
-from acn.corrector.corrector import Corrector, load_for_target
-from acn.corrector.threads import torch_threads
+from acn.corrector.card import TargetDescription
+from acn.corrector.corrector import Corrector, load_for_target, torch_threads
 from acn.corrector.evaluate import HELD_OUT_SEED_OFFSET, distribution_stats, episode_stats
 from acn.corrector.fit import FitConfig
 from acn.rl.policy_io import WalkingPolicy, policy_config
@@ -295,19 +295,12 @@ def file_digest(corrector_dir: str | Path) -> str:
 
 
 def load_corrector(directory: str | Path, env: EnvConfig) -> Corrector:
-    """A frozen corrector that fits ``env``'s robot (action mode, control rate); one-line errors."""
+    """A frozen corrector that fits ``env``'s robot in MuJoCo as is (action mode, control rate,
+    no effects); one-line errors."""
     d = Path(directory)
     if not d.is_dir():
         raise UserError(f"corrector directory {d} does not exist")
-    corrector = load_for_target(d, [])  # the MuJoCo the policy is evaluated in is the simulator as is
-    data = corrector.config.get("training_data") or {}
-    mode, hz = data.get("action_mode"), data.get("control_hz")
-    ours = round(1.0 / env.sim.control_dt, 9)
-    if mode is not None and mode != env.sim.action_mode:
-        raise UserError(f"corrector {d} was fitted on {mode} actions; the policy sends {env.sim.action_mode} actions")
-    if hz is not None and abs(float(hz) - ours) > 1e-6:
-        raise UserError(f"corrector {d} was fitted at {hz:g} Hz control; the policy acts at {ours:g} Hz")
-    return corrector
+    return load_for_target(d, TargetDescription("mujoco", env.sim.action_mode, round(1.0 / env.sim.control_dt, 9)))
 
 
 # ----- evaluation: PyBullet, MuJoCo, MuJoCo + F -------------------------------------------------
@@ -343,7 +336,8 @@ def same_state_oracle_rewards(policy: WalkingPolicy, env: EnvConfig, corrector: 
     oracle = getattr(evaluate, "same_state_oracle", None)
     if oracle is None:
         return None
-    spread = (corrector.config.get("normalisation") or {}).get("state_spread") if corrector is not None else None
+    norm = None if corrector is None else corrector.card.normalisation
+    spread = None if norm is None else norm.state_spread
     return [np.asarray(r, dtype=float) for r in oracle(
         env.sim, policy, states, env.seconds, source="pybullet", target="mujoco",
         channel_scale=None if spread is None else np.asarray(spread, dtype=float))]

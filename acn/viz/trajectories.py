@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from acn.corrector.card import TargetDescription
 from acn.datasets.reader import RecordedFrames
 from acn.errors import UserError
 from acn.sim.state import STATE_NAMES
@@ -133,20 +134,12 @@ def recorded_episode(frames: RecordedFrames, episode: int) -> EpisodeView:
     return EpisodeView(episode, timestamp, trajectories, reference)
 
 
-def check_corrector_fits(config: dict, frames: RecordedFrames, directory: str) -> None:
-    """A one-line ``UserError`` if a corrector config was fitted for other channels or actions."""
-    unknown = [c for c in config.get("input_channels", []) + config.get("output_channels", [])
-               if c not in STATE_NAMES]
-    if unknown:
-        raise UserError(f"corrector {directory} was fitted for other state channels ({unknown[0]!r} is not one of "
-                        f"this dataset's)")
-    actions = config.get("action_channels")
-    if actions is not None and list(actions) != list(frames.info.action_names):
-        raise UserError(f"corrector {directory} was fitted for other action channels than {frames.path}")
-    trained = (config.get("training_data") or {}).get("action_mode")
-    if trained is not None and trained != frames.info.action_mode:
-        raise UserError(f"corrector {directory} was fitted on {trained}-mode actions; {frames.path} has "
-                        f"{frames.info.action_mode}-mode actions")
+def corrector_target(frames: RecordedFrames) -> TargetDescription:
+    """What a corrector runs on in ``corrected_target``: the dataset's target simulator, action mode,
+    control rate and action channels, with the physical effects the corrector was fitted on top of."""
+    info = frames.info
+    return TargetDescription(info.target.simulator, info.action_mode, info.control_hz, effects=None,
+                             action_channels=info.action_names)
 
 
 def corrected_target(frames: RecordedFrames, episode: EpisodeView, corrector) -> Trajectory:
@@ -166,7 +159,7 @@ def corrected_target(frames: RecordedFrames, episode: EpisodeView, corrector) ->
     import torch
 
     cfg = config_from_metadata(frames.info)
-    model = Model.from_json({"backend": cfg.target, "effects": corrector.target_effects},
+    model = Model.from_json({"backend": cfg.target, "effects": list(corrector.card.training_data.target_effects)},
                             where="the corrector's config")
     cfg = replace(cfg, target_effects=list(model.effects))
     rows = frames.rows(episode.index)

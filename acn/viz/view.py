@@ -11,7 +11,6 @@ a spawned viewer, or a ``.rrd`` written all or nothing (temporary file, then ren
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 from dataclasses import dataclass
@@ -23,7 +22,7 @@ from acn.errors import UserError
 from acn.outputs import Output
 from acn.viz.blueprint import build_blueprint
 from acn.viz.meshes import DEFAULT_CELL, link_meshes
-from acn.viz.trajectories import EpisodeView, check_corrector_fits, corrected_target, parse_episodes, recorded_episode
+from acn.viz.trajectories import EpisodeView, corrected_target, corrector_target, parse_episodes, recorded_episode
 
 APPLICATION_ID = "acn-view"
 
@@ -55,18 +54,12 @@ def default_rrd_path(dataset: Path) -> Path:
 
 
 def load_corrector(directory: Path, frames: RecordedFrames):
-    """A frozen corrector that fits this dataset, or a one-line ``UserError``."""
-    from acn.corrector.corrector import CONFIG, Corrector
+    """A frozen corrector fitted for this dataset's target, or a one-line ``UserError``."""
+    from acn.corrector.corrector import load_for_target
 
     if not frames.paired:
         raise UserError(f"--corrector needs a paired dataset (source and target); {frames.path} has measurements only")
-    path = Path(directory) / CONFIG
-    if path.is_file():
-        try:
-            check_corrector_fits(json.loads(path.read_text()), frames, str(directory))
-        except (json.JSONDecodeError, UnicodeDecodeError, AttributeError, TypeError):
-            pass  # Corrector.load reports a broken config
-    return Corrector.load(directory)
+    return load_for_target(directory, corrector_target(frames))
 
 
 def add_model_trajectories(model_path: str | Path, frames: RecordedFrames, episodes: list[EpisodeView],
