@@ -256,7 +256,8 @@ def collect_main(argv: list[str] | None = None) -> int:
     args = collect_parser().parse_args(argv)
 
     def body() -> int:
-        from acn.datasets.record import Interrupted, record
+        from acn.datasets.record import record
+        from acn.datasets.stream import Interrupted
         from acn.datasets.schema import DATASET
         from acn.sim.hidden import ANSWER, answer_path
 
@@ -352,7 +353,7 @@ def _fit_flags() -> dict[str, Flag]:
 
 
 def fit_parser() -> argparse.ArgumentParser:
-    from acn.corrector.fit import FitConfig
+    from acn.corrector.config import FitConfig
 
     d = FitConfig()
     p = _Parser(prog="acn-fit", description="Fit the Action Correction Network from paired datasets written by "
@@ -373,7 +374,8 @@ def fit_main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         from acn.corrector.corrector import CORRECTOR
-        from acn.corrector.fit import FitConfig, fit, save
+        from acn.corrector.config import FitConfig
+        from acn.corrector.fit import fit, save
 
         check_output(args.out, CORRECTOR, overwrite=args.overwrite, inputs=[*args.datasets, args.model])
         for d in args.datasets:

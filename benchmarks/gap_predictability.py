@@ -104,9 +104,10 @@ def gap_rows(path: str, foot: bool, gap_only: bool) -> dict[str, np.ndarray]:
     oracle's solve: 40x fewer re-simulations, no ``oracle_removed``.
     """
     from acn.datasets.reader import load_paired
-    from acn.datasets.record import config_from_metadata
+    from acn.datasets.metadata import config_from_metadata
     from acn.corrector.evaluate import output_spread
-    from acn.corrector.fit import FitConfig, same_state_rows, split_episodes
+    from acn.corrector.config import FitConfig
+    from acn.corrector.rows import same_state_rows, split_episodes
     from acn.corrector.oracle import OUTPUT_INDEX
     from acn.corrector.sensitivity import channel_difference
     from acn.sim.resim import Resimulator

@@ -20,7 +20,7 @@ import numpy as np
 
 from acn.measurements.data import load_measurements
 from acn.datasets.reader import read_card
-from acn.datasets.record import config_from_metadata
+from acn.datasets.metadata import config_from_metadata
 from acn.corrector.acn import OUTPUT_CHANNELS
 from acn.corrector.evaluate import held_out, output_spread, run_episodes, summarise, typical_spread
 from acn.corrector.oracle import SameStateOracle

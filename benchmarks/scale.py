@@ -81,7 +81,7 @@ def collect(cfg: CollectConfig, out: Path, **kw) -> tuple[float, list[float]]:
 
 def writer_rate(cfg: CollectConfig, root: Path, repeats: int) -> float:
     """Frames/s of DatasetWriter alone: a few episodes written ``repeats`` times, then committed."""
-    from acn.datasets.record import collection_metadata
+    from acn.datasets.metadata import collection_metadata
 
     episodes = collect_episodes(cfg, list(range(2)))
     writer = DatasetWriter(root, fps=int(round(1 / cfg.sim.control_dt)), paired=True, task="bench",

@@ -34,7 +34,7 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 import rerun as rr  # noqa: E402
 
 from acn.datasets.reader import load_frames  # noqa: E402
-from acn.datasets.record import collection_metadata  # noqa: E402
+from acn.datasets.metadata import collection_metadata  # noqa: E402
 from acn.datasets.writer import DatasetWriter  # noqa: E402
 from acn.sim.collector import CollectConfig, collect_episodes  # noqa: E402
 from acn.sim.state import FOOT_NAMES, GROUPS, JOINT_NAMES, SLICES  # noqa: E402

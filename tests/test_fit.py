@@ -16,7 +16,8 @@ from acn.cli import fit_main
 from acn.datasets.record import record
 from acn.errors import UserError
 from acn.corrector import Corrector
-from acn.corrector.fit import FitConfig, fit, save
+from acn.corrector.config import FitConfig
+from acn.corrector.fit import fit, save
 from acn.sim.collector import CollectConfig
 
 # This module runs on one test process (`make test`'s -n 2): the paired data and the fitted correctors are made once.

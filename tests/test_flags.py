@@ -13,7 +13,7 @@ def _config(parser, defaults, flags, argv):
 
 
 def test_no_option_given_builds_each_commands_config_with_the_configs_own_defaults(tmp_path):
-    from acn.corrector.fit import FitConfig
+    from acn.corrector.config import FitConfig
     from acn.diagnosis import DiagnoseConfig
     from acn.rl.ppo import PPOConfig
     from acn.sim.backends import SimConfig

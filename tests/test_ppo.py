@@ -18,7 +18,8 @@ from gymnasium.utils.env_checker import check_env
 
 from acn.cli import ppo_main
 from acn.datasets.record import record
-from acn.corrector.fit import FitConfig, fit, save
+from acn.corrector.config import FitConfig
+from acn.corrector.fit import fit, save
 from acn.sim.collector import CollectConfig, fallen
 from acn.sim.envs import ENV_IDS, A1Env, EnvConfig
 from acn.sim.reward import REWARD_WEIGHTS, weighted

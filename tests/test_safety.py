@@ -100,7 +100,8 @@ def test_overwrite_replaces_the_toolkits_own_dataset(acn, tmp_path):
 
 
 def test_an_interrupted_overwrite_leaves_the_old_dataset(tmp_path, small_config):
-    from acn.datasets.record import Interrupted, record
+    from acn.datasets.record import record
+    from acn.datasets.stream import Interrupted
 
     out = record(small_config, tmp_path / "ds")
     before = _tree(out)

@@ -57,7 +57,7 @@ import torch
 from acn.atomic import move_into_place, temporary_beside
 from acn.corrector.acn import LABELLED, OUTPUT_CHANNELS
 from acn.corrector.card import CorrectorCard, Simulator, TrainingData
-from acn.corrector.config import VARIANT_DEFAULTS, FitConfig
+from acn.corrector.config import FitConfig
 from acn.corrector.corrector import CORRECTOR, Corrector
 from acn.corrector.evaluate import output_spread
 from acn.corrector.rows import (INPUT_INDEX, OUTPUT_INDEX, Labelled, Normaliser, labelled_split, same_state_rows,
@@ -73,7 +73,7 @@ from acn.sim.collector import CollectConfig
 from acn.sim.policies import POLICIES
 from acn.sim.resim import Resimulator
 
-__all__ = ["FitConfig", "VARIANT_DEFAULTS", "SHRINK_GRID", "fit", "save", "calibrate", "calibration_rows",
+__all__ = ["SHRINK_GRID", "fit", "save", "calibrate", "calibration_rows",
            "fingerprint"]
 
 SHRINK_GRID = (0.0, 0.25, 0.5, 0.75, 1.0)  # candidate scales of F for the calibration

@@ -64,7 +64,7 @@ from acn.corrector.acn import INPUT_CHANNELS
 from acn.corrector.card import TargetDescription
 from acn.corrector.corrector import Corrector, load_for_target, torch_threads
 from acn.corrector.evaluate import HELD_OUT_SEED_OFFSET, distribution_stats, episode_stats
-from acn.corrector.fit import FitConfig
+from acn.corrector.config import FitConfig
 from acn.rl.policy_io import WalkingPolicy, policy_config
 from acn.sim.backends import ACTION_MODES, SimConfig
 from acn.sim.collector import CollectConfig, initial_state
@@ -559,7 +559,7 @@ class Trainer:
 
     def refit(self) -> None:
         """Collect paired data with the current policy and refit F with acn-fit's code."""
-        from acn.datasets.record import collection_metadata
+        from acn.datasets.metadata import collection_metadata
         from acn.datasets.writer import DatasetWriter
         from acn.corrector.fit import fit, save
         from acn.sim.collector import PairedRollout

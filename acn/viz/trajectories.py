@@ -152,7 +152,7 @@ def corrected_target(frames: RecordedFrames, episode: EpisodeView, corrector) ->
     send), corrected on its own state at every step. Stops early only if the simulator blows
     up. Frame k of the result is the state before the k-th action.
     """
-    from acn.datasets.record import config_from_metadata
+    from acn.datasets.metadata import config_from_metadata
     from acn.sim.backends import SimulationDiverged, make_backend
     from acn.sim.effects import Model
 
