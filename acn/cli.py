@@ -785,7 +785,7 @@ def diagnose_main(argv: list[str] | None = None) -> int:
         if args.measured is None:
             raise UserError("give the measurement dataset (or --list-effects)")
         from acn.measurements.data import load_measurements
-        from acn.diagnosis import DiagnoseConfig, diagnose, explain_corrector
+        from acn.diagnosis import ClosedLoop, DiagnoseConfig, Stages, run
         from acn.diagnosis.report import terminal, write_html, write_json
         from acn.sim.effects import EFFECT_NAMES, Model
 
@@ -800,8 +800,8 @@ def diagnose_main(argv: list[str] | None = None) -> int:
         _check_diagnose_outputs(args)
         if args.corrector is not None and not args.closed_loop:
             raise UserError("--corrector is run in closed loop: give --closed-loop N as well")
-        args.limits = args.limits or args.limits_per_joint
-        if args.limits and args.explain_corrector is not None:
+        limits = args.limits or args.limits_per_joint
+        if limits and args.explain_corrector is not None:
             raise UserError("--limits and --explain-corrector are separate questions: ask one at a time")
         if args.closed_loop and args.explain_corrector is not None:
             raise UserError("--closed-loop and --explain-corrector are separate questions: ask one at a time")
@@ -812,17 +812,12 @@ def diagnose_main(argv: list[str] | None = None) -> int:
                              step_seconds=args.step_seconds if args.step_seconds != 0 else None,
                              auto_alternatives=args.auto_alternatives, finest=args.finest)
         cfg.validate()
+        closed_loop = ClosedLoop(args.measured, args.side, args.closed_loop, args.closed_loop_seconds, args.corrector,
+                                 oracles=not args.no_oracles) if args.closed_loop else None
+        stages = Stages(add=tuple(args.add), automatic=args.auto, explain_corrector=args.explain_corrector,
+                        limits=limits, limits_per_joint=args.limits_per_joint, closed_loop=closed_loop)
         data = load_measurements(args.measured, side=args.side)
-        if args.closed_loop:  # refuse a log that cannot be re-run before the diagnosis, not after
-            from acn.diagnosis.transfer import robot_config
-
-            robot_config(args.measured, data, args.side, model, args.closed_loop, args.closed_loop_seconds,
-                         args.corrector)
-        from acn.corrector.corrector import load_for_target
-
-        for corrector in (model.corrector, args.corrector, args.explain_corrector):
-            if corrector:  # each is applied to the model as given
-                load_for_target(corrector, [e.to_json() for e in model.effects])
+        stages.check(data, model)  # refuse what cannot run before the diagnosis, not after
         from tqdm import tqdm
 
         with _ray_executor(args, "acn-diagnose"), tqdm(total=100, file=sys.stderr, bar_format="{l_bar}{bar}| {elapsed} {postfix}",
@@ -832,22 +827,7 @@ def diagnose_main(argv: list[str] | None = None) -> int:
                 if fraction is not None:
                     bar.update(int(round(100 * fraction)) - bar.n)
 
-            if args.explain_corrector is not None:
-                result = explain_corrector(data, model, args.explain_corrector, cfg, progress=say)
-            else:
-                result = diagnose(data, model, cfg, add=args.add, automatic=args.auto, progress=say)
-            if args.limits:
-                from acn.diagnosis.pipeline import rule_out
-
-                result.limits = rule_out(result, cfg.candidates, one_joint=args.limits_per_joint, progress=say)
-            if args.closed_loop:
-                from acn.diagnosis.transfer import closed_loop_models
-
-                say("closed loop")
-                result.closed_loop = closed_loop_models(args.measured, data, args.side, model, result.final.model,
-                                                        args.corrector, args.closed_loop, args.closed_loop_seconds,
-                                                        oracles=not args.no_oracles)
-            say("done", 1.0)
+            result = run(data, model, cfg, stages, progress=say)
         print(terminal(result))
         if args.json:
             print(f"wrote {write_json(result, args.json)}")

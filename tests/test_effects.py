@@ -293,6 +293,7 @@ def test_random_hidden_effects_are_realistic():
 def test_the_stance_feet_locate_the_measured_frame():
     """frames.frame_from_stance: the feet on the ground put a tilted, shifted frame about where
     it is (the first guess of base_frame_offset's fit); yaw, which flat ground cannot see, stays 0."""
+    from acn.diagnosis.traits import traits
     from acn.sim import frames
     from acn.sim.policies import make_policy
 
@@ -310,9 +311,9 @@ def test_the_stance_feet_locate_the_measured_frame():
     np.testing.assert_allclose(guess[:3], frame[:3], atol=0.01)           # m
     np.testing.assert_allclose(guess[3:], frame[3:], atol=0.003)          # rad
     assert frames.frame_from_stance(np.array(states[:10])) is None  # too few rows to say
-    # base_frame_offset's check: the true frame brings the stance feet to the ground; the trunk
-    # frame read as if it were the measured one, or a frame off the other way, moves them away
-    check = get_effect("base_frame_offset").check
+    # base_frame_offset's check (acn.diagnosis.traits): the true frame brings the stance feet to the
+    # ground; the trunk frame read as if it were the measured one, or a frame off the other way, moves them away
+    check = traits("base_frame_offset").check
     named = dict(zip(("x", "y", "z", "roll", "pitch"), frame[:5]))
     assert check(np.array(states), named) == ""
     trunk = frames.state_in_trunk(np.array(states), frame)
@@ -326,7 +327,7 @@ def test_the_pd_gains_reproduce_strength_and_damping_where_the_pd_is_unsaturated
     and a derivative gain raised by c / kd is joint damping c (the PD's velocity target is 0), on
     the trot's first ten steps (torques below the limit scaled by 0.8; later they differ: the scaled
     force range clips). PyBullet applies damping in its control law, MuJoCo integrates joint
-    damping implicitly: a few per cent apart. The ranking leans on it (``rank.tied_with_best``)."""
+    damping implicitly: a few per cent apart. The ranking leans on it (``acn.diagnosis.policy.tied_with_best``)."""
     assert get_effect("pd_gains").reproduces == ("motor_strength", "joint_damping")
     kd = SimConfig().kd
     strength, gains = _with(motor_strength={"scale": 0.8}), _with(pd_gains={"kp_scale": 0.8, "kd_scale": 0.8})
