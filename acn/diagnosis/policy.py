@@ -869,8 +869,8 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
         if best is None and added and not looked:  # one joint apart (docstring)
             looked = True
             looked_finer = finer_look(problem, current.model, cfg, judge_rows, residual, ranking, progress=progress,
-                               floor_says_noise=floor_says_noise(float(np.mean(residual ** 2)), floor_mse, t=t),
-                               only=[c.name for c in ranking if c.name not in names(added)], t=t)
+                                      floor_says_noise=floor_says_noise(float(np.mean(residual ** 2)), floor_mse, t=t),
+                                      only=[c.name for c in ranking if c.name not in names(added)], t=t)
             if looked_finer is not ranking:
                 ranking = looked_finer
                 continue
