@@ -1106,7 +1106,7 @@ def revisit(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows
         chain.append(step)
         current, residual = step.after, step.judgement.residual_after
     holds = predicts_as_well if len(kept) < len(effects) else predicts_no_worse
-    if not holds(improvement(chain, added)):
+    if not holds(improvement(chain, added), t=t):
         if progress:
             progress(f"{' + '.join(names(chain))} predicts worse: kept {' + '.join(effects)}", None)
         return added
