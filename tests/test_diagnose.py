@@ -851,3 +851,14 @@ def test_auto_holds_an_effect_s_final_fit_to_the_margins_it_asks_of_the_candidat
                                                              "the longest horizon")
     assert too_little(judged(0.97), 0.10, floor_mse=0.9) == ""  # it shows over the longest horizon
     assert too_little(judged(0.6), None, floor_mse=0.1) == ""
+
+
+def test_the_diagnosis_traits_name_effects_of_the_catalogue():
+    """What the diagnosis knows of an effect beyond its physics (``acn.diagnosis.traits``) is keyed
+    by catalogue names: a misspelt one would leave its effect without the trait, silently."""
+    from acn.diagnosis.granularity import GRANULARITIES
+    from acn.diagnosis.traits import TRAITS
+    from acn.sim.effects import EFFECT_NAMES
+
+    assert set(TRAITS) <= set(EFFECT_NAMES), set(TRAITS) - set(EFFECT_NAMES)
+    assert all(t.granularity in GRANULARITIES for t in TRAITS.values())
