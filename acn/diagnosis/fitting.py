@@ -10,11 +10,12 @@ iteration is re-simulated in one batch (one model per point).
 
 Jacobians are forward differences, except in ``central=True`` fits (``central_jacobian``),
 which the diagnosis uses to refine the final fit of an effect whose parameters move the
-measured start state (``traits.EffectTraits.moves_start``: encoder offsets move the feet against
-the ground; ``policy.refine_chain``). There the one-step residual is rough at small scales: at a step
-of 0.015 rad, forward and backward slopes differed by more than their mean in 59 % of the rows
-of a noise-free offsets log, and a forward difference overstated the slope (Jacobian norm 34.8
-forward, 27.0 central), so Gauss-Newton steps fell short and the interval half-widths too.
+measured start state (``traits.EffectTraits.moves_start``: encoder offsets move the feet
+against the ground; ``policy.refine_chain``). There the one-step residual is rough at small
+scales: at a step of 0.015 rad, forward and backward slopes differed by more than their mean in
+59 % of the rows of a noise-free offsets log, and a forward difference overstated the slope
+(Jacobian norm 34.8 forward, 27.0 central), so Gauss-Newton steps fell short and the interval
+half-widths too.
 Measured on that log (12 offsets, one fit from nominal, 12 iterations): forward differences
 left 32.6 % of the offsets' norm (172 evaluations; 11.9 % after 36 iterations), central ones
 10.8 % within the same evaluations and 3.6 % within the budget given for them (2 n + 3
