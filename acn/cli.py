@@ -836,7 +836,7 @@ def diagnose_main(argv: list[str] | None = None) -> int:
         if args.measured is None:
             raise UserError("give the measurement dataset (or --list-effects)")
         from acn.measurements.data import load_measurements
-        from acn.diagnosis import DiagnoseConfig, diagnose, explain_corrector
+        from acn.diagnosis import ClosedLoop, DiagnoseConfig, Stages, run
         from acn.diagnosis.report import terminal, write_html, write_json
         from acn.sim.effects import Model
 
@@ -847,8 +847,8 @@ def diagnose_main(argv: list[str] | None = None) -> int:
         _check_diagnose_outputs(args)
         if args.corrector is not None and not args.closed_loop:
             raise UserError("--corrector is run in closed loop: give --closed-loop N as well")
-        args.limits = args.limits or args.limits_per_joint
-        if args.limits and args.explain_corrector is not None:
+        limits = args.limits or args.limits_per_joint
+        if limits and args.explain_corrector is not None:
             raise UserError("--limits and --explain-corrector are separate questions: ask one at a time")
         if args.closed_loop and args.explain_corrector is not None:
             raise UserError("--closed-loop and --explain-corrector are separate questions: ask one at a time")
@@ -856,20 +856,12 @@ def diagnose_main(argv: list[str] | None = None) -> int:
             check_input_dir(corrector, "corrector directory")
         model = Model.parse(args.model)
         cfg.validate()
+        closed_loop = ClosedLoop(args.measured, args.side, args.closed_loop, args.closed_loop_seconds, args.corrector,
+                                 oracles=not args.no_oracles) if args.closed_loop else None
+        stages = Stages(add=tuple(args.add), automatic=args.auto, explain_corrector=args.explain_corrector,
+                        limits=limits, limits_per_joint=args.limits_per_joint, closed_loop=closed_loop)
         data = load_measurements(args.measured, side=args.side)
-        if args.closed_loop:  # refuse a log that cannot be re-run before the diagnosis, not after
-            from acn.diagnosis.transfer import robot_config
-
-            robot_config(args.measured, data, args.side, model, args.closed_loop, args.closed_loop_seconds,
-                         args.corrector)
-        from acn.corrector.card import TargetDescription
-        from acn.corrector.corrector import load_for_target
-
-        target = TargetDescription(model.backend, data.control.action_mode, round(1.0 / data.control.control_dt, 9),
-                                   tuple(e.to_json() for e in model.effects))
-        for corrector in (model.corrector, args.corrector, args.explain_corrector):
-            if corrector:  # each is applied to the model as given, driven as the robot was
-                load_for_target(corrector, target)
+        stages.check(data, model)  # refuse what cannot run before the diagnosis, not after
         from tqdm import tqdm
 
         with _ray_executor(args, "acn-diagnose"), tqdm(total=100, file=sys.stderr, bar_format="{l_bar}{bar}| {elapsed} {postfix}",
@@ -879,22 +871,7 @@ def diagnose_main(argv: list[str] | None = None) -> int:
                 if fraction is not None:
                     bar.update(int(round(100 * fraction)) - bar.n)
 
-            if args.explain_corrector is not None:
-                result = explain_corrector(data, model, args.explain_corrector, cfg, progress=say)
-            else:
-                result = diagnose(data, model, cfg, add=args.add, automatic=args.auto, progress=say)
-            if args.limits:
-                from acn.diagnosis.pipeline import rule_out
-
-                result.limits = rule_out(result, cfg.candidates, one_joint=args.limits_per_joint, progress=say)
-            if args.closed_loop:
-                from acn.diagnosis.transfer import closed_loop_models
-
-                say("closed loop")
-                result.closed_loop = closed_loop_models(args.measured, data, args.side, model, result.final.model,
-                                                        args.corrector, args.closed_loop, args.closed_loop_seconds,
-                                                        oracles=not args.no_oracles)
-            say("done", 1.0)
+            result = run(data, model, cfg, stages, progress=say)
         print(terminal(result))
         if args.json:
             print(f"wrote {write_json(result, args.json)}")

@@ -49,7 +49,7 @@ from acn.measurements.importer import ImportConfig, import_log  # noqa: E402
 from acn.measurements.data import load_measurements  # noqa: E402
 from acn.diagnosis import DiagnoseConfig, diagnose  # noqa: E402
 from acn.diagnosis.problem import prepare  # noqa: E402
-from acn.diagnosis.rank import doubt  # noqa: E402
+from acn.diagnosis.policy import doubt  # noqa: E402
 from acn.diagnosis.report import terminal, to_json, write_html  # noqa: E402
 from acn.sim.effects import Model, get_effect  # noqa: E402
 from acn.sim.state import GROUPS, JOINT_NAMES  # noqa: E402
@@ -124,7 +124,7 @@ def each_hidden_effect(name: str, tmp: Path, value: dict) -> None:
     """The effect ranked first over the whole catalogue, the verdict "effect", its parameters within
     20 % (twelve encoder offsets within 10 %: the refined fit's central differences reach 3.8 %),
     its granularity, >= 80 % of the error removed; encoder offsets are refined once, and a chain
-    compared refined (``add.other_starts``) is not refined again."""
+    compared refined (``policy.other_starts``) is not refined again."""
     params, policy = CASES[name]
     cfg = FAST if name in CHOOSES_GRANULARITY else replace(FAST, finest="shared")
     d = diagnose(measured(tmp, {name: params}, policy), Model.parse("mujoco"), cfg, add=[name])
@@ -149,7 +149,7 @@ def each_hidden_effect(name: str, tmp: Path, value: dict) -> None:
     assert added.judgement.removed >= 0.8 and added.judgement.explained(d.floor_mse) >= 0.8
     assert added.after.headline < added.before.headline
     if name == "encoder_offset":
-        from acn.diagnosis.add import refine_chain
+        from acn.diagnosis.policy import refine_chain
 
         residual = d.problem.residual_of(Model.parse("mujoco").sim_config(d.problem.control), d.judge_rows)
         assert added.refined and refine_chain(d.problem, d.before, d.added, cfg, d.judge_rows, residual) is d.added
@@ -178,14 +178,15 @@ def a_candidate_whose_final_fit_is_set_aside_gives_way_to_the_runner_up(tmp, val
     not (a bound too high for ground_softness on the trot gap). The chain goes on with the
     runner-up, and the verdict never names the effect set aside. The real rule is replaced by one
     that refuses the true effect, so the path runs on every machine."""
-    from acn.diagnosis import add
+    from acn.diagnosis import policy
 
-    real = add.final_doubt
-    refuse = lambda step: "refused for the test" if step.name == "joint_damping" else real(step)  # noqa: E731
+    real = policy.final_doubt
+    refuse = lambda step, t=policy.THRESHOLDS: (  # noqa: E731
+        "refused for the test" if step.name == "joint_damping" else real(step, t=t))
     data = measured(tmp, {"joint_damping": {"value": 0.4}})
     cfg = replace(FAST, finest="shared", candidates=("joint_damping", "joint_friction", "armature"),
                   auto_alternatives=0)
-    with mock.patch.object(add, "final_doubt", refuse):  # the report reads it too: held to the end
+    with mock.patch.object(policy, "final_doubt", refuse):  # the report reads it too: held to the end
         d = diagnose(data, Model.parse("mujoco"), cfg, automatic=True)
         value["added"] = ",".join(a.name for a in d.added)
         assert d.ranking[0].name == "joint_damping", [(c.name, c.score) for c in d.ranking]
@@ -204,19 +205,20 @@ def an_implausible_finer_fit_gives_way_to_the_coarser_one_it_beat(tmp, value):
     is implausible (a hip damping the pace gait hardly moves runs to the bound), the shared fit is
     made final instead of setting the effect aside whole. The real rule is replaced by one that
     refuses the per-type fit, so the path runs on every machine."""
-    from acn.diagnosis import add
+    from acn.diagnosis import policy
 
     data = measured(tmp, {"joint_damping": {"value": [0.1, 0.8, 0.4] * 4}})
     cfg = replace(FAST, finest="type")
     problem = prepare(data, Model.parse("mujoco"), cfg)
     rows = problem.sample(problem.held_rows, cfg.judge_rows, salt=4)
     residual = problem.residual_of(Model.parse("mujoco").sim_config(problem.control), rows)
-    fit, _ = add.choose_fit(problem, Model.parse("mujoco"), "joint_damping", cfg, rows, residual)
-    assert fit.granularity == "type" and not add.implausible(fit), fit.values
-    real = add.implausible
-    refuse = lambda f: "refused for the test" if f.granularity == "type" else real(f)  # noqa: E731
-    with mock.patch.object(add, "implausible", refuse):
-        fit, judgement = add.choose_fit(problem, Model.parse("mujoco"), "joint_damping", cfg, rows, residual)
+    fit, _ = policy.choose_fit(problem, Model.parse("mujoco"), "joint_damping", cfg, rows, residual)
+    assert fit.granularity == "type" and not policy.implausible(fit), fit.values
+    real = policy.implausible
+    refuse = lambda f, t=policy.THRESHOLDS: (  # noqa: E731
+        "refused for the test" if f.granularity == "type" else real(f, t=t))
+    with mock.patch.object(policy, "implausible", refuse):
+        fit, judgement = policy.choose_fit(problem, Model.parse("mujoco"), "joint_damping", cfg, rows, residual)
     value["shared_value"] = round(float(np.mean(fit.values["value"])), 4)
     assert fit.granularity == "shared" and judgement.significant, fit.values
     assert 0.1 < value["shared_value"] < 0.8, fit.values
@@ -226,9 +228,8 @@ def an_implausible_finer_fit_gives_way_to_the_coarser_one_it_beat(tmp, value):
 def a_richer_effect_gives_way_to_a_simpler_one_beside_the_others(tmp, value):
     """Strength 0.85 and friction 0.2 hidden; both PD gains added first (as greedy adding can on
     noisy logs), then friction. Judged again beside friction, the gains give way to the simpler
-    motor_strength and the chain is refitted (``add.revisit``)."""
-    from acn.diagnosis.add import revisit
-    from acn.diagnosis.rank import ties_of
+    motor_strength and the chain is refitted (``policy.revisit``)."""
+    from acn.diagnosis.policy import revisit, ties_of
 
     data = measured(tmp, {"motor_strength": {"scale": 0.85}, "joint_friction": {"value": 0.2}})
     nominal = Model.parse("mujoco")
@@ -240,7 +241,7 @@ def a_richer_effect_gives_way_to_a_simpler_one_beside_the_others(tmp, value):
     # after it without a ranking, none
     assert d.added[0].ties == ties_of(next(c for c in d.ranking if c.name == "pd_gains"), d.ranking)
     assert d.added[1].ties == []
-    # the report reads the gains in the words of the effects they reproduce (Effect.alike)
+    # the report reads the gains in the words of the effects they reproduce (traits.EffectTraits.alike)
     assert "while the PD is unsaturated, the same physics as: motor_strength" in terminal(d), terminal(d)
     residual = d.problem.residual_of(nominal.sim_config(d.problem.control), d.judge_rows)
     chain = revisit(d.problem, d.before, cfg, d.judge_rows, residual, d.added)
@@ -257,8 +258,8 @@ def a_richer_effect_gives_way_to_a_simpler_one_beside_the_others(tmp, value):
 def an_added_effect_no_longer_significant_beside_the_others_is_left_out(tmp, value):
     """Damping 0.5 hidden; the ground's softness added first, then the damping. Judged again beside
     the damping the softness is not significant, and the chain without it predicts as well, so it
-    is left out (``add.revisit``); the damping is kept."""
-    from acn.diagnosis.add import revisit
+    is left out (``policy.revisit``); the damping is kept."""
+    from acn.diagnosis.policy import revisit
 
     data = measured(tmp, {"joint_damping": {"value": 0.5}})
     nominal = Model.parse("mujoco")
@@ -277,9 +278,9 @@ def two_effects_one_stood_in_for_are_found_from_another_start(tmp, value):
     """Payload 2 kg and damping 0.4 hidden; both PD gains added alone (as greedy adding can on a
     noisy log: a higher derivative gain is damping, a lower proportional gain sags like a heavier
     trunk). Started from the next candidates instead, a chain with the payload predicts the
-    held-out rows and 5-step rollouts clearly better and replaces it (``add.other_starts``); every
+    held-out rows and 5-step rollouts clearly better and replaces it (``policy.other_starts``); every
     chain tried is reported with why it was kept or set aside."""
-    from acn.diagnosis.add import other_starts
+    from acn.diagnosis.policy import other_starts
 
     data = measured(tmp, {"payload": {"mass": 2.0}, "joint_damping": {"value": 0.4}})
     nominal = Model.parse("mujoco")
@@ -343,7 +344,7 @@ def effects_that_fit_the_noise_in_the_start_states_are_set_aside(tmp, value):
     remove 8 %, not a third): a dozen encoder offsets lower the one-step error by a third (noisy
     joint readings press the feet into the ground on average), but make the 25-step open-loop
     prediction worse; they are not named, and the verdict is none."""
-    from acn.diagnosis.rank import one_step_only
+    from acn.diagnosis.policy import one_step_only
 
     path, _ = _imported(tmp, LogSpec(noise=1.0, seed=7, control_hz=100, kp=40.0, kd=1.0, seconds=6.0, episodes=3),
                         config=ImportConfig(100, 40.0, 1.0, 33.5))
@@ -365,7 +366,7 @@ def a_robot_lying_on_its_back_without_any_effect_is_none(tmp, value):
     height decides how deep the robot starts in the ground, and encoder offsets of a few mrad
     remove 40 % of the one-step error. Set aside for their size, what they remove is noise: the
     verdict is none, not "unexplained"."""
-    from acn.diagnosis.rank import fits_noise_by_size
+    from acn.diagnosis.policy import fits_noise_by_size
 
     path, _ = _imported(tmp, LogSpec(seconds=10.0, episodes=4, seed=708, controller="pace"))
     d = diagnose(load_measurements(path), Model.parse("mujoco"), FAST)
@@ -646,7 +647,7 @@ def one_weak_motor_beside_a_delay_is_found_once_the_delay_is_added(tmp, value):
     """A 20 ms delay and one motor (FR_calf) at half strength in a short noisy log. The delay
     removes most of the error, so the first ranking does not look at joints apart; beside the
     delay a new effect is ranked with one value for every joint, and one strength for all twelve
-    is not significant. ``add.greedy`` fits the new per-joint candidates per joint before it stops
+    is not significant. ``policy.greedy`` fits the new per-joint candidates per joint before it stops
     (--auto would stop at the delay alone, 0.022 s), and the weak motor is named (FR_calf 0.511,
     the others 0.99-1.10). The same log without the weak motor: the delay alone."""
     cfg = replace(FAST, candidates=("actuator_latency", "motor_strength", "joint_damping"), auto_alternatives=0)
@@ -999,9 +1000,9 @@ def noisy_start_states_do_not_make_a_payload_light(tmp, value):
     variables, through the contact forces); the refit on predictions five steps ahead does not
     (``fitting.multistep_refit``). Where the one-step fit ran into a corner (a light mass far above
     the trunk: implausible), the ranking refits over five steps from the realistic middle
-    (``rank.over_steps_from_realistic``) and finds the payload."""
+    (``policy.over_steps_from_realistic``) and finds the payload."""
     from acn.diagnosis.fitting import fit_effect, multistep_refit
-    from acn.diagnosis.rank import implausible, over_steps_from_realistic
+    from acn.diagnosis.policy import implausible, over_steps_from_realistic
 
     path, _ = _imported(tmp, LogSpec(noise=1.0, seed=4809, seconds=10.0, episodes=2, controller="pace",
                                      spec_edit=welded_payload(1.82, [-0.0308, -0.0518, 0.0056])))

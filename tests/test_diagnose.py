@@ -77,15 +77,15 @@ def test_two_effects_together_are_both_found(tmp_path):
 
 
 def test_a_chain_replaces_the_kept_one_where_it_predicts_better_at_more_horizons():
-    """``add.predicts_better``: significantly better at one step and not worse at the longest
+    """``policy.predicts_better``: significantly better at one step and not worse at the longest
     horizon, or, where the horizons disagree, better at two of them or more, at more than worse,
     and by more than it loses (the product of the error ratios). The first two are the chains of
     the true effects on two draws under attitude feedback (benchmarks/diagnose_cases.py
     --feedback), which a rule asking for one step and the longest horizon both would set aside;
     the noise case is a chain that wins the one step alone. A chain of fewer effects
-    replaces the kept one where it predicts as well, and ``add.revisit``'s refitted chain
+    replaces the kept one where it predicts as well, and ``policy.revisit``'s refitted chain
     replaces the greedy one where it predicts no horizon worse."""
-    from acn.diagnosis.add import horizon_votes, predicts_as_well, predicts_better, predicts_no_worse
+    from acn.diagnosis.policy import horizon_votes, predicts_as_well, predicts_better, predicts_no_worse
 
     def v(one, z, h5, h25):
         return {"one_step_removed": one, "z": z, "longest_horizon_removed": h25, "horizons_removed": {5: h5, 25: h25}}
@@ -104,13 +104,13 @@ def test_a_chain_replaces_the_kept_one_where_it_predicts_better_at_more_horizons
     assert predicts_better(v(0.0, 0.4, 0.06, 0.06))            # both open-loop horizons, one step even
     extra_lag = v(-0.001, -0.6, 0.021, 0.097)                 # one horizon alone (a chain with an extra lag)
     assert horizon_votes(extra_lag) == (1, 0) and not predicts_better(extra_lag)
-    # with fewer effects, predicting as well is enough (add.predicts_as_well): a benchmark draw whose kept chain
+    # with fewer effects, predicting as well is enough (policy.predicts_as_well): a benchmark draw whose kept chain
     # has an actuator lag beside the true delay and PD gains; without it, no horizon worse and the product below 1
     without_lag = v(0.004, 1.5, 0.035, 0.039)
     assert not predicts_better(without_lag) and predicts_as_well(without_lag)
     assert not predicts_as_well(v(0.02, 2.5, 0.03, -0.06))   # 25 steps worse by more than the margin
     assert not predicts_as_well(v(-0.04, -3.0, 0.0, 0.01))   # no horizon worse by a margin, but worse overall
-    # add.revisit keeps a refitted chain only where it predicts no horizon worse: a benchmark draw (floor friction
+    # policy.revisit keeps a refitted chain only where it predicts no horizon worse: a benchmark draw (floor friction
     # and a payload 7.8 cm ahead) whose payload, fitted again beside the friction, turns implausible and gives way
     # to motor strength; that chain against the payload's
     strength_for_payload = v(-0.036, -7.3, -0.264, -0.927)
@@ -485,7 +485,7 @@ def test_measurements_at_another_rate_or_without_joints_are_one_line_errors(tmp_
 def test_parameters_the_data_cannot_pin_down_are_flagged():
     """A standard error above half the largest realistic magnitude: not identified (0.15 rad for offsets)."""
     from acn.diagnosis.fitting import EffectFit
-    from acn.diagnosis.rank import unidentified
+    from acn.diagnosis.policy import unidentified
     from acn.sim.state import JOINT_NAMES
 
     effect = get_effect("encoder_offset")
@@ -532,7 +532,8 @@ def ranked_candidate(rng: np.random.Generator, name: str, value: float, error: f
     """A significant candidate whose every parameter is ``value`` and whose held-out residuals
     (600 rows x 4 channels) have spread ``error``; ``longer``: its longest-horizon gain."""
     from acn.diagnosis.fitting import EffectFit
-    from acn.diagnosis.rank import Candidate, Judgement
+    from acn.diagnosis.heldout import Judgement
+    from acn.diagnosis.results import Candidate
 
     effect = get_effect(name)
     values = {p.name: np.asarray(value) for p in effect.parameters}
@@ -548,7 +549,7 @@ def test_candidates_one_step_cannot_tell_apart_are_ordered_by_the_longer_predict
     5 % more goes first; a clear one-step winner, a richer effect no better at one step or a small
     longer gain do not move. A richer effect behind only by its price is tied too, unless it
     reproduces the best."""
-    from acn.diagnosis.rank import prefer_longer, tied_with_best
+    from acn.diagnosis.policy import prefer_longer, tied_with_best
 
     rng = np.random.default_rng(0)
     candidate = lambda *args: ranked_candidate(rng, *args)  # noqa: E731
@@ -580,13 +581,13 @@ def test_candidates_one_step_cannot_tell_apart_are_ordered_by_the_longer_predict
 
 
 def test_an_added_effect_names_the_candidates_one_step_could_not_tell_it_from():
-    """``rank.tied_either_way`` of the candidate ``--auto`` adds: of the same ranking, those the
+    """``policy.tied_either_way`` of the candidate ``--auto`` adds: of the same ranking, those the
     held-out one step does not put behind it, or behind which it would not be put; the report lists
     them under the added effect (terminal, HTML and JSON ``one_step_ties``) with their own fitted
     values and both horizons' shares, the added one first. An added effect's parameters are printed
     apart from those of effects refitted with it."""
-    from acn.diagnosis.add import Added
-    from acn.diagnosis.rank import ties_of, tied_either_way, tied_with
+    from acn.diagnosis.policy import ties_of, tied_either_way, tied_with
+    from acn.diagnosis.results import Added
     from acn.diagnosis.report import _notes, _params_text, _ties_json
 
     rng = np.random.default_rng(3)
@@ -601,7 +602,7 @@ def test_an_added_effect_names_the_candidates_one_step_could_not_tell_it_from():
     assert tied_with(clear, [clear, strength]) == [] and tied_with(strength, [strength, clear]) == [clear]
     assert tied_either_way(clear, [clear, strength, friction]) == [strength]
     assert ties_of(clear, [clear, strength, friction]) == [clear, strength]  # Added.ties: the added one first
-    # a chain started past the best (add.other_starts): one as simple and clearly better is ahead, not tied
+    # a chain started past the best (policy.other_starts): one as simple and clearly better is ahead, not tied
     assert tied_with(friction, [friction, strength]) == [strength]
     assert tied_either_way(friction, [friction, strength]) == [] and ties_of(friction, [friction, strength]) == []
     before, after = (SimpleNamespace(check=25, channel_error={25: np.full((1, 4), e)}) for e in (1.0, 0.5))
@@ -625,7 +626,8 @@ def test_a_richer_effect_that_wins_only_the_one_step_gives_way_to_a_simpler_one(
     """Both PD gains beat joint damping at one step by more than the parsimony margin (as with
     twice the typical sensor noise); damping goes first only if it predicts the longest horizon
     at least as well: extra parameters that buy one-step accuracy alone fit the noise."""
-    from acn.diagnosis.rank import LongestHorizon, prefer_simpler
+    from acn.diagnosis.heldout import LongestHorizon
+    from acn.diagnosis.policy import prefer_simpler
 
     rng = np.random.default_rng(1)
     gains = ranked_candidate(rng, "pd_gains", 1.2, 0.40, 0.35)
@@ -644,7 +646,8 @@ def test_a_richer_effect_close_at_one_step_keeps_its_place_where_it_predicts_cle
     significantly better (z 4) and lowers the 25-step error by 6 % of it more. Close at one step
     alone does not hand the place to the simpler effect; a longer gain within 5 % of the simpler
     one's does."""
-    from acn.diagnosis.rank import LongestHorizon, paired_z, prefer_simpler
+    from acn.diagnosis.heldout import LongestHorizon, paired_z
+    from acn.diagnosis.policy import prefer_simpler
 
     rng = np.random.default_rng(2)
     payload = ranked_candidate(rng, "payload", 0.0, 0.400, 0.75)
@@ -667,8 +670,7 @@ def test_what_a_too_small_effect_removes_counts_as_noise():
     height decides how deep the trunk starts in the floor) raises the noise floor by what it removes,
     beyond what the best plausible candidate removes; a fit at a bound or one the measurements
     contradict does not (it stands in for another effect: springs fitted as damping)."""
-    from acn.diagnosis.pipeline import noise_fitted
-    from acn.diagnosis.rank import implausible, too_small
+    from acn.diagnosis.policy import implausible, noise_fitted, too_small
 
     rng = np.random.default_rng(2)
     residual = rng.normal(0.0, 1.0, (600, 4))
@@ -703,11 +705,11 @@ def test_a_small_effect_added_under_sensor_noise_is_named_in_the_verdict():
     """--auto added an effect to a model whose one-step error is mostly noise (< 15 % above the
     floor): the verdict names it (not "none" beside the added effect); with more
     structure left the same addition is "unexplained"; a set-aside best candidate says why."""
-    from acn.diagnosis.add import Added
     from acn.diagnosis.compare import Comparison
     from acn.diagnosis.fitting import EffectFit
-    from acn.diagnosis.pipeline import verdict
-    from acn.diagnosis.rank import Candidate, Judgement
+    from acn.diagnosis.heldout import Judgement
+    from acn.diagnosis.policy import verdict
+    from acn.diagnosis.results import Added, Candidate
 
     rng = np.random.default_rng(0)
 
@@ -746,14 +748,15 @@ def test_a_small_effect_added_under_sensor_noise_is_named_in_the_verdict():
 
 
 def test_an_effect_that_acts_on_few_steps_is_significant_by_its_longest_horizon_gain():
-    """``rank.uneven``: where no plausible candidate is significant at one step, the plausible ones
+    """``policy.uneven``: where no plausible candidate is significant at one step, the plausible ones
     that remove >= 2 % or improve it by z >= 3 are checked at the longest horizon, and the one that
     removes most of that error, if a quarter, is significant (a torque limit reached in a few per
     cent of the steps); the verdict says so. Not when another plausible candidate is significant
     at one step (unless it removes under 2 % of the long error), nor below 25 %."""
     from acn.diagnosis.fitting import EffectFit
-    from acn.diagnosis.pipeline import verdict
-    from acn.diagnosis.rank import Candidate, Judgement, uneven
+    from acn.diagnosis.heldout import Judgement
+    from acn.diagnosis.policy import uneven, verdict
+    from acn.diagnosis.results import Candidate
 
     residual = np.zeros((10, 4))
 
@@ -820,12 +823,12 @@ def test_an_effect_that_acts_on_few_steps_is_significant_by_its_longest_horizon_
     uneven(horizon, [strength, payload, weak])
     assert horizon.asked == [id(strength.fit.model), id(payload.fit.model)]
     assert payload.judgement.by_longest and not strength.judgement.significant
-    from acn.diagnosis.pipeline import evidence
+    from acn.diagnosis.policy import evidence
     assert evidence(payload) == ("it removes 54% of the longest-horizon open-loop error; at one step only 1.8% "
                                  "(8.1 standard errors): a small effect that adds up")
     # added so, the report says why under the effect
-    from acn.diagnosis.add import Added
     from acn.diagnosis.report import _notes
+    from acn.diagnosis.results import Added
     errors = {1: np.full(4, 1.0), 25: np.full(4, 1.0)}
     before = Comparison(Model("mujoco"), {}, errors, np.arange(10), residual + 1, np.zeros((10, 43)), 0)
     after = replace(before, channel_error={1: errors[1], 25: np.full(4, np.sqrt(0.46))})
@@ -837,8 +840,8 @@ def test_an_effect_that_acts_on_few_steps_is_significant_by_its_longest_horizon_
 
 def test_auto_holds_an_effect_s_final_fit_to_the_margins_it_asks_of_the_candidate():
     """``too_little``: what ``--auto`` asks of the best candidate, and again of its final fit."""
-    from acn.diagnosis.add import too_little
-    from acn.diagnosis.rank import Judgement
+    from acn.diagnosis.heldout import Judgement
+    from acn.diagnosis.policy import too_little
 
     def judged(after: float) -> Judgement:
         return Judgement(1.0, after, 1.0 - after, 5.0, True, np.zeros((1, 1)))
@@ -848,3 +851,14 @@ def test_auto_holds_an_effect_s_final_fit_to_the_margins_it_asks_of_the_candidat
                                                              "the longest horizon")
     assert too_little(judged(0.97), 0.10, floor_mse=0.9) == ""  # it shows over the longest horizon
     assert too_little(judged(0.6), None, floor_mse=0.1) == ""
+
+
+def test_the_diagnosis_traits_name_effects_of_the_catalogue():
+    """What the diagnosis knows of an effect beyond its physics (``acn.diagnosis.traits``) is keyed
+    by catalogue names: a misspelt one would leave its effect without the trait, silently."""
+    from acn.diagnosis.granularity import GRANULARITIES
+    from acn.diagnosis.traits import TRAITS
+    from acn.sim.effects import EFFECT_NAMES
+
+    assert set(TRAITS) <= set(EFFECT_NAMES), set(TRAITS) - set(EFFECT_NAMES)
+    assert all(t.granularity in GRANULARITIES for t in TRAITS.values())

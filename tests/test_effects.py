@@ -293,6 +293,7 @@ def test_random_hidden_effects_are_realistic():
 def test_the_stance_feet_locate_the_measured_frame():
     """stance.frame_from_stance: the feet on the ground put a tilted, shifted frame about where
     it is (the first guess of base_frame_offset's fit); yaw, which flat ground cannot see, stays 0."""
+    from acn.diagnosis.traits import traits
     from acn.sim import frames, stance
     from acn.sim.policies import make_policy
 
@@ -310,9 +311,9 @@ def test_the_stance_feet_locate_the_measured_frame():
     np.testing.assert_allclose(guess[:3], frame[:3], atol=0.01)           # m
     np.testing.assert_allclose(guess[3:], frame[3:], atol=0.003)          # rad
     assert stance.frame_from_stance(np.array(states[:10])) is None  # too few rows to say
-    # base_frame_offset's check: the true frame brings the stance feet to the ground; the trunk
-    # frame read as if it were the measured one, or a frame off the other way, moves them away
-    check = get_effect("base_frame_offset").check
+    # base_frame_offset's check (acn.diagnosis.traits): the true frame brings the stance feet to the
+    # ground; the trunk frame read as if it were the measured one, or a frame off the other way, moves them away
+    check = traits("base_frame_offset").check
     named = dict(zip(("x", "y", "z", "roll", "pitch"), frame[:5]))
     assert check(np.array(states), named) == ""
     trunk = frames.state_in_trunk(np.array(states), frame)
@@ -326,7 +327,7 @@ def test_the_pd_gains_reproduce_strength_and_damping_where_the_pd_is_unsaturated
     and a derivative gain raised by c / kd is joint damping c (the PD's velocity target is 0), on
     the trot's first ten steps (torques below the limit scaled by 0.8; later they differ: the scaled
     force range clips). PyBullet applies damping in its control law, MuJoCo integrates joint
-    damping implicitly: a few per cent apart. The ranking leans on it (``rank.tied_with_best``)."""
+    damping implicitly: a few per cent apart. The ranking leans on it (``acn.diagnosis.policy.tied_with_best``)."""
     assert get_effect("pd_gains").reproduces == ("motor_strength", "joint_damping")
     kd = SimConfig().kd
     strength, gains = _with(motor_strength={"scale": 0.8}), _with(pd_gains={"kp_scale": 0.8, "kd_scale": 0.8})
@@ -351,9 +352,15 @@ def _apart(backend: str, a: ModelParams, b: ModelParams, steps: int = 10) -> flo
 
 
 def test_the_pd_gains_are_read_in_the_words_of_the_effects_they_reproduce():
-    """``Effect.alike``: kp x0.8, kd x1.2 is motor strength 0.8 + joint damping 0.4 kd, and kp x0.8
-    + damping 0.2 kd, as the report says; the first reading re-simulates to the same states."""
-    alike = get_effect("pd_gains").alike
+    """``EffectTraits.alike`` (acn.diagnosis.traits): kp x0.8, kd x1.2 is motor strength 0.8 + joint
+    damping 0.4 kd, and kp x0.8 + damping 0.2 kd, as the report says; the first reading re-simulates
+    to the same states."""
+    from acn.diagnosis.policy import THRESHOLDS
+    from acn.diagnosis.traits import traits
+
+    def alike(values, kd):
+        return traits("pd_gains").alike(values, kd, THRESHOLDS.smallest_share)
+
     kd = SimConfig().kd
     said = alike({"kp_scale": 0.8, "kd_scale": 1.2}, kd)
     assert said == f"motor_strength 0.8 + joint_damping {0.4 * kd:.3g} N m s/rad; kp x0.8 alone + joint_damping " \
@@ -366,15 +373,16 @@ def test_the_pd_gains_are_read_in_the_words_of_the_effects_they_reproduce():
 
 
 def test_motor_strength_and_joint_damping_together_are_read_as_the_pd_gains():
-    """``Effect.together``, ``alike`` reversed: strength 0.66 + damping 0.6 is kp x0.66, kd x(0.66 +
+    """``EffectTraits.together``, ``alike`` reversed: strength 0.66 + damping 0.6 is kp x0.66, kd x(0.66 +
     0.6 / kd), as the report says where a diagnosis adds both (a benchmark draw with kp x0.63
     hidden comes out so); it re-simulates to the same states. The report's reading of a final model."""
     from types import SimpleNamespace
 
     from acn.diagnosis.report import _together, _together_text
+    from acn.diagnosis.traits import traits
 
     kd = SimConfig().kd
-    said = get_effect("pd_gains").together({"motor_strength": {"scale": 0.66}, "joint_damping": {"value": 0.6}}, kd)
+    said = traits("pd_gains").together({"motor_strength": {"scale": 0.66}, "joint_damping": {"value": 0.6}}, kd)
     assert said == f"pd_gains kp_scale 0.66, kd_scale {0.66 + 0.6 / kd:.3g}", said
     both = _with(motor_strength={"scale": 0.66}, joint_damping={"value": 0.6})
     gains = _with(pd_gains={"kp_scale": 0.66, "kd_scale": 0.66 + 0.6 / kd})

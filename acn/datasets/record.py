@@ -24,8 +24,6 @@ import signal
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Iterator, Sequence
 
-# Names of this module (``__all__``) too: ``Interrupted``, which ``record`` raises, and the
-# collection's ``acn`` block and the config read back from it.
 from acn.datasets.metadata import collection_metadata, config_from_metadata
 from acn.datasets.shards import record_shards
 from acn.datasets.stream import Interrupted, write_stream
@@ -34,8 +32,6 @@ from acn.sim.collector import CollectConfig, Episode, LoadCorrector, rollout_for
 
 if TYPE_CHECKING:  # pragma: no cover
     from acn.sim.parallel import RayConfig
-
-__all__ = ["Interrupted", "collection_metadata", "config_from_metadata", "record"]
 
 # Children are forked from a clean server process that has imported the simulators once.
 _CTX = mp.get_context("forkserver")

@@ -10,11 +10,12 @@ iteration is re-simulated in one batch (one model per point).
 
 Jacobians are forward differences, except in ``central=True`` fits (``central_jacobian``),
 which the diagnosis uses to refine the final fit of an effect whose parameters move the
-measured start state (``Effect.moves_start``: encoder offsets move the feet against the
-ground; ``add.refine_chain``). There the one-step residual is rough at small scales: at a step
-of 0.015 rad, forward and backward slopes differed by more than their mean in 59 % of the rows
-of a noise-free offsets log, and a forward difference overstated the slope (Jacobian norm 34.8
-forward, 27.0 central), so Gauss-Newton steps fell short and the interval half-widths too.
+measured start state (``traits.EffectTraits.moves_start``: encoder offsets move the feet
+against the ground; ``policy.refine_chain``). There the one-step residual is rough at small
+scales: at a step of 0.015 rad, forward and backward slopes differed by more than their mean in
+59 % of the rows of a noise-free offsets log, and a forward difference overstated the slope
+(Jacobian norm 34.8 forward, 27.0 central), so Gauss-Newton steps fell short and the interval
+half-widths too.
 Measured on that log (12 offsets, one fit from nominal, 12 iterations): forward differences
 left 32.6 % of the offsets' norm (172 evaluations; 11.9 % after 36 iterations), central ones
 10.8 % within the same evaluations and 3.6 % within the budget given for them (2 n + 3
@@ -35,19 +36,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 from mujoco import minimize
 
-from acn.diagnosis.problem import Problem
+from acn.diagnosis.granularity import GRANULARITIES, GROUP_LABELS, GROUP_OF_JOINT
+from acn.diagnosis.problem import DiagnoseConfig, Problem
+from acn.diagnosis.traits import traits
 from acn.sim.effects import Effect, Model, Parameter, Values
 from acn.sim.resim import Resimulator
-from acn.sim.state import FOOT_NAMES, JOINT_NAMES, NUM_JOINTS
 
-GRANULARITIES = ("shared", "type", "leg", "joint")
-_GROUP_OF_JOINT = {
-    "shared": np.zeros(NUM_JOINTS, dtype=int),
-    "type": np.tile(np.arange(3), 4),
-    "leg": np.repeat(np.arange(4), 3),
-    "joint": np.arange(NUM_JOINTS),
-}
-GROUP_LABELS = {"shared": ("all",), "type": ("hip", "thigh", "calf"), "leg": FOOT_NAMES, "joint": JOINT_NAMES}
 DIVERGED_RESIDUAL = 10.0  # normalised residual given to a prediction that blew up
 FD_STEP = 0.1             # finite-difference step, as a fraction of a parameter's typical magnitude
 
@@ -102,11 +96,6 @@ class SoftL1(minimize.Norm):
         return proj.T @ (r * w), proj.T @ (proj * (w ** 3))
 
 
-def default_granularity(effect: Effect) -> str:
-    """How finely a candidate is first fitted: offsets differ joint by joint, the rest is shared."""
-    return "joint" if effect.name == "encoder_offset" else "shared"
-
-
 @dataclass
 class FreeParameters:
     """The vector an optimiser moves, and how it maps onto an effect's values."""
@@ -116,7 +105,7 @@ class FreeParameters:
     base: Values  # values of the parameters before the fit (nominal, or the model's current ones)
 
     def _size(self, p: Parameter) -> int:
-        return int(_GROUP_OF_JOINT[self.granularity].max()) + 1 if p.per_joint else 1
+        return int(GROUP_OF_JOINT[self.granularity].max()) + 1 if p.per_joint else 1
 
     @property
     def names(self) -> list[str]:
@@ -151,7 +140,7 @@ class FreeParameters:
     def vector(self, values: Values) -> np.ndarray:
         """Group means of ``values`` as a free-parameter vector."""
         out = []
-        group = _GROUP_OF_JOINT[self.granularity]
+        group = GROUP_OF_JOINT[self.granularity]
         for p in self.effect.parameters:
             v = np.asarray(values[p.name], float)
             out += [float(v[group == g].mean()) for g in range(self._size(p))] if p.per_joint else [float(v)]
@@ -160,7 +149,7 @@ class FreeParameters:
     def values(self, x: np.ndarray) -> Values:
         out: Values = {}
         i = 0
-        group = _GROUP_OF_JOINT[self.granularity]
+        group = GROUP_OF_JOINT[self.granularity]
         for p in self.effect.parameters:
             n = self._size(p)
             out[p.name] = x[i:i + n][group] if p.per_joint else float(x[i])
@@ -252,7 +241,7 @@ class EffectFit:
     cost: float              # mean squared normalised residual on the fit rows
     evaluations: int
     nominal: Values          # the values at which the effect is absent (for these control settings)
-    contradicted: str = ""   # why the measurements contradict the values without simulation (``Effect.check``)
+    contradicted: str = ""   # why the measurements contradict the values without simulation (``EffectTraits.check``)
 
 
 class _OutOfBudget(Exception):
@@ -324,8 +313,9 @@ def fit_effect(problem: Problem, base: Model, effect: Effect, granularity: str, 
     ``multistep_refit``).
     """
     free = _together(problem, base, effect, granularity, refit)
-    if start is None and effect.guess is not None and all(t.name != effect.name for t in base.effects):
-        start = _clipped(effect, effect.guess(problem.data.state[problem.fit_rows]))
+    guess = traits(effect.name).guess
+    if start is None and guess is not None and all(t.name != effect.name for t in base.effects):
+        start = _clipped(effect, guess(problem.data.state[problem.fit_rows]))
     lo, hi = free.bounds()
     n_free = len(free.names)
     objective = Objective(problem, base, free, rows, budget=8 + max_iter * ((2 if central else 1) * n_free + 3),
@@ -359,8 +349,10 @@ def fit_effect(problem: Problem, base: Model, effect: Effect, granularity: str, 
 
 
 def _contradiction(problem: Problem, effect: Effect, values: Values) -> str:
-    """Why the measured fit rows contradict ``values`` without simulation (``Effect.check``; "" if not)."""
-    return effect.check(problem.data.state[problem.fit_rows], values) if effect.check else ""
+    """Why the measured fit rows contradict ``values`` without simulation (``traits.EffectTraits.check``;
+    "" if not)."""
+    check = traits(effect.name).check
+    return check(problem.data.state[problem.fit_rows], values) if check else ""
 
 
 def _clipped(effect: Effect, values: Values | None) -> Values | None:
@@ -443,21 +435,19 @@ def _costs_too_much(before: np.ndarray, after: np.ndarray) -> bool:
     return soft.value(after) > IV_MAX_COST * soft.value(before)
 
 
-LEAST_SQUARES_UNDER_STEP = ("armature",)  # kept as least squares fits them where rows start from the model's step
-
-
 def _instrumented(problem: Problem, free: Together) -> np.ndarray:
     """Which of ``free``'s parameters the instrumental refit solves for: all of them where the
     fitted effect has joint parameters, else the joint parameters of the effects refitted beside it.
-    Not the armature where rows start from the model's step (``Problem.velocities_from_step``: the
-    joint velocities were derived): that step reads the angles at t - 2 to t, which the instruments'
+    Not the armature (``EffectTraits.least_squares_under_step``) where rows start from the model's
+    step (``Problem.velocities_from_step``: the joint velocities were derived): that step reads the angles at t - 2 to t, which the instruments'
     rows t -+ IV_LAG read too, and the instruments moved armatures that least squares fitted within
     8 % (0.0199 for 0.02, 0.0194 for 0.0179) 20-31 % high (0.0240, 0.0234), 3.6 of their standard
     errors. Damping and friction keep their instruments: least squares put them 7 % and 17 % high.
     An armature fitted there counts as an effect without joint parameters: the instruments solve
     only the joint parameters beside it (they moved a lag beside it 4.7 -> 3.8 ms for 4.85)."""
     joint = free.per_joint()
-    kept = np.isin(free.effect_of(), LEAST_SQUARES_UNDER_STEP) if problem.velocities_from_step else np.zeros_like(joint)
+    kept = np.array([traits(n).least_squares_under_step for n in free.effect_of()], dtype=bool) \
+        if problem.velocities_from_step else np.zeros_like(joint)
     own = any(p.per_joint for p in free.effect.parameters) and not kept[0]
     return (np.ones_like(joint) if own else joint) & ~kept
 
@@ -495,7 +485,7 @@ def instrumental_refit(problem: Problem, base: Model, fit: EffectFit, rows: np.n
     """
     free = _together(problem, base, fit.effect, fit.granularity, refit)
     solved = _instrumented(problem, free)
-    if fit.effect.fit_over_steps or not solved.any():
+    if traits(fit.effect.name).fit_over_steps or not solved.any():
         return fit
     step = IV_LAG * problem.unit  # control steps: the instruments' windows share no measured state with row t's
     rows = rows[problem.data.with_neighbours(rows, step) & problem.data.with_neighbours(rows, step + problem.unit - 1)]
@@ -592,3 +582,30 @@ def multistep_refit(problem: Problem, fit: EffectFit, rows: np.ndarray, refit: t
 def multistep_horizon(problem: Problem) -> int | None:
     """The shortest horizon above one diagnosis step that the problem compares (5 by default)."""
     return min((h for h in problem.scale if h > 1), default=None)
+
+
+def rank_rows(problem: Problem, cfg: DiagnoseConfig) -> np.ndarray:
+    """The fit rows every candidate is fitted on while ranking (the same sample for each)."""
+    return problem.sample(problem.fit_rows, cfg.rank_rows, salt=3)
+
+
+def final_rows(problem: Problem, cfg: DiagnoseConfig) -> tuple[np.ndarray, bool]:
+    """The rows an added effect's final fit is made on: ``cfg.fit_rows`` of the fitting rows, or the
+    ranking's rows where those are not fewer; and whether they are more than the ranking's."""
+    rows, ranked = problem.sample(problem.fit_rows, cfg.fit_rows, salt=5), rank_rows(problem, cfg)
+    return (rows, True) if len(rows) > len(ranked) else (ranked, False)
+
+
+FINAL_ITER = 6  # iterations of a final fit on more rows, from the values of the fit it refines
+
+
+def final_fit(problem: Problem, model: Model, fit: EffectFit, cfg: DiagnoseConfig, again: bool = False,
+              central: bool = False) -> EffectFit:
+    """``fit`` refitted on ``cfg.fit_rows`` rows from its values at its granularity (where those are
+    more than the ranking's rows it was fitted on, or ``again``: on another base model), then the
+    instrumental refit on the same rows; ``central``: both with central differences."""
+    rows, more = final_rows(problem, cfg)
+    if again or more:
+        fit = fit_effect(problem, model, fit.effect, fit.granularity, rows, start=fit.values, max_iter=FINAL_ITER,
+                         refit=refittable(model), central=central)
+    return instrumental_refit(problem, model, fit, rows, refit=refittable(model), central=central)

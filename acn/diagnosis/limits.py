@@ -6,7 +6,7 @@ catalogue effect the final model does not hold:
 
 - its one-step signature s(m) on the judge rows: the final model's prediction with the effect
   added at ``nominal + m`` (every joint alike, its other parameters nominal) minus without it,
-  in the residual's normalised channels, at ``GRID`` sizes m up to ``LARGEST_FACTOR`` x the
+  in the residual's normalised channels, at ``GRID`` sizes m up to ``Thresholds.largest_factor`` x the
   largest realistic magnitude (within the parameter's bounds);
 - were the effect in the robot, the measured next states would move by s(m) (to first order:
   the prediction starts from the same measured state), and the final model's residual r would
@@ -22,9 +22,9 @@ catalogue effect the final model does not hold:
   left 35 % of s, the simulated step 1 %). Absorbing only lowers the would-be error, so it is
   simulated only where it can move the limit (``_absorb``);
 - the effect counts as detected at m where that perfect fit passes the rules ``--auto`` adds
-  by: ``rank.judge``'s significance (at least ``MIN_IMPROVEMENT`` of the error, z >= 3 over
-  blocks of rows, or ``LARGE_IMPROVEMENT``) and ``add.too_little`` at one step (explains
-  ``AUTO_MIN_EXPLAINED`` of the error above the noise floor, removes ``AUTO_MIN_REMOVED``);
+  by: ``policy.judge``'s significance (at least ``min_improvement`` of the error, z >= 3 over
+  blocks of rows, or ``large_improvement``) and ``policy.too_little`` at one step (explains
+  ``auto_min_explained`` of the error above the noise floor, removes ``auto_min_removed``);
 - the limit: the smallest such m, the bracket between the grid sizes around it halved
   ``BISECTIONS`` times (the limit is its upper end).
 
@@ -32,7 +32,7 @@ A limit is optimistic: it assumes the fit finds the effect exactly, that nothing
 it beyond what one step of the final model's effects absorbs, and that noise in the measured
 start states does not bias its fit (Coulomb friction from a noisy speed fits high: the reason
 a small friction is missed beside a larger effect). An effect that the log shows only over
-long predictions (a torque limit reached on few steps, ``rank.uneven``) can be found below its
+long predictions (a torque limit reached on few steps, ``policy.uneven``) can be found below its
 one-step limit. A signed parameter (an offset) is scanned in the + direction only.
 
 One joint alone (``one_joint=True``, ``--limits-per-joint``): a worn gearbox or a weak motor sits
@@ -41,9 +41,9 @@ nominal, at the same sizes; the joint whose limit is largest (the one the log sh
 the grid, ties to the smallest share removed) is bisected, and its scan is ``Limit.one_joint``.
 That limit holds for every joint: at or beyond it, one joint's effect is shown wherever it
 sits. Detected by the same rules, and where the noise floor calls the log's error noise, the
-perfect fit must also remove ``STRUCTURED_SHARE`` of it: ``rank.finer_look``'s rule for a fit
+perfect fit must also remove ``structured_share`` of it: ``policy.finer_look``'s rule for a fit
 per joint there. The diagnosis looks at one joint alone in its first ranking (where no effect
-explains most of the error), at an effect already added, and (``--auto``: ``add.greedy``) at the
+explains most of the error), at an effect already added, and (``--auto``: ``policy.greedy``) at the
 new per-joint candidates beside the added effects before it stops. With ``--add`` alone it does
 not: there a limit per joint beside the added effects is a bound the diagnosis may not reach.
 """
@@ -55,14 +55,13 @@ from dataclasses import dataclass
 import numpy as np
 from mujoco import minimize
 
-from acn.diagnosis.add import too_little
 from acn.diagnosis.fitting import FreeParameters, Objective, Together, central_jacobian, granularity_of
 from acn.diagnosis.problem import Problem
-from acn.diagnosis.rank import LARGEST_FACTOR, STRUCTURED_SHARE, judgement
+from acn.diagnosis.policy import THRESHOLDS, Thresholds, judgement, too_little
 from acn.sim.effects import Effect, Model, Parameter, get_effect
 from acn.sim.state import JOINT_NAMES
 
-GRID = 6         # sizes scanned per parameter: LARGEST_FACTOR x the largest realistic magnitude, halved GRID - 1 times
+GRID = 6         # sizes scanned per parameter: largest_factor x the largest realistic magnitude, halved GRID - 1 times
 BISECTIONS = 2   # halvings of the bracket around the limit (in the log of the distance: within a factor 2^(1/4))
 
 
@@ -143,8 +142,8 @@ def _unit(unit: str) -> str:
     return "" if unit == "1" else f" {unit}"
 
 
-def sizes(p: Parameter, control) -> np.ndarray:
-    """(GRID,) values of ``p`` from near nominal to ``LARGEST_FACTOR`` x its largest realistic
+def sizes(p: Parameter, control, t: Thresholds = THRESHOLDS) -> np.ndarray:
+    """(GRID,) values of ``p`` from near nominal to ``t.largest_factor`` x its largest realistic
     distance from nominal, towards its realistic range (+ for a signed one), within its bounds."""
     nominal = p.nominal_for(control)
     if p.signed:
@@ -152,7 +151,7 @@ def sizes(p: Parameter, control) -> np.ndarray:
     else:
         far = max(p.realistic, key=lambda x: abs(x - nominal))
         direction, largest = float(np.sign(far - nominal)), abs(far - nominal)
-    steps = LARGEST_FACTOR * largest * 0.5 ** np.arange(GRID - 1, -1, -1)
+    steps = t.largest_factor * largest * 0.5 ** np.arange(GRID - 1, -1, -1)
     return np.clip(nominal + direction * steps, p.lower, p.upper)
 
 
@@ -210,17 +209,20 @@ class _Scan:
     floor_mse: float
     one_joint_removes: float
     absorbed: _Absorbed | None  # what the final model's effects absorb (None: it holds none)
+    t: Thresholds               # the selection's: what ``--auto`` would add
 
 
 def limits(problem: Problem, model: Model, rows: np.ndarray, residual: np.ndarray, floor_mse: float,
-           candidates: tuple[str, ...], one_joint: bool = False, floor_says_noise: bool = False) -> list[Limit]:
+           candidates: tuple[str, ...], one_joint: bool = False, floor_says_noise: bool = False,
+           t: Thresholds = THRESHOLDS) -> list[Limit]:
     """The limit of every parameter with a realistic range of the ``candidates`` ``model`` does not
     hold, on judge ``rows`` whose residuals under ``model`` are ``residual`` (N, C). ``one_joint``:
     per-joint parameters are also scanned on one joint at a time (module docstring), where a fit
-    must remove ``STRUCTURED_SHARE`` of the error if ``floor_says_noise``."""
-    held = {t.name for t in model.effects}
-    scan = _Scan(problem, model, rows, residual, floor_mse, STRUCTURED_SHARE if floor_says_noise else 0.0,
-                 _Absorbed.by(problem, model, rows) if set(candidates) - held else None)
+    must remove ``t.structured_share`` of the error if ``floor_says_noise``; ``t``: the selection's
+    thresholds (``policy``)."""
+    held = {e.name for e in model.effects}
+    scan = _Scan(problem, model, rows, residual, floor_mse, t.structured_share if floor_says_noise else 0.0,
+                 _Absorbed.by(problem, model, rows) if set(candidates) - held else None, t)
     out = []
     for name in candidates:
         if name in held:
@@ -239,7 +241,7 @@ def _limit(scan: _Scan, effect: Effect, p: Parameter, joint: int | None = None, 
     """The limit of ``p`` on every joint alike, or on ``joint`` alone; ``grid``: its scan at
     ``sizes`` where already simulated (removed, z, detected)."""
     nominal = p.nominal_for(scan.problem.control)
-    values = sizes(p, scan.problem.control)
+    values = sizes(p, scan.problem.control, scan.t)
     removed, z, detected = grid if grid is not None else _would_be(scan, effect, p, values, joint)
     value = None
     if detected.any():
@@ -258,7 +260,7 @@ def _least_shown_joint(scan: _Scan, effect: Effect, p: Parameter) -> tuple[Limit
     """``p`` on each joint alone at the grid's sizes (one batch): the limit of the joint the log
     shows least (the latest first size shown, ties to the smallest share removed there) and each
     joint's smallest grid size shown (nan: none)."""
-    values = sizes(p, scan.problem.control)
+    values = sizes(p, scan.problem.control, scan.t)
     k, n = len(values), len(JOINT_NAMES)
     removed, z, detected = (x.reshape(n, k) for x in _would_be(scan, effect, p, np.tile(values, n),
                                                                 np.repeat(np.arange(n), k)))
@@ -325,6 +327,6 @@ def _absorb(scan: _Scan, would_be: list[np.ndarray], judged: np.ndarray, groups:
 def _judged(scan: _Scan, would_be: np.ndarray, least_removed: float) -> tuple[float, float, bool]:
     """The share of the would-be error (N, C) a perfect fit removes (it leaves the final model's
     residual), its paired z, and whether ``--auto`` would add it at one step."""
-    step = judgement(would_be, scan.residual)
-    shown = step.significant and not too_little(step, None, scan.floor_mse) and step.removed >= least_removed
+    step = judgement(would_be, scan.residual, t=scan.t)
+    shown = step.significant and not too_little(step, None, scan.floor_mse, t=scan.t) and step.removed >= least_removed
     return step.removed, step.z, shown

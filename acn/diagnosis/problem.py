@@ -26,6 +26,7 @@ import numpy as np
 from acn.measurements import checks
 from acn.measurements.data import Measurements, fill_derived
 from acn.datasets.reader import state_difference
+from acn.diagnosis.granularity import GRANULARITIES
 from acn.errors import UserError
 from acn.sim.actuation import LAG_MEMORY, position_targets
 from acn.sim.backends import SimConfig
@@ -63,8 +64,8 @@ class DiagnoseConfig:
     fit_rows: int = 1_500          # fit rows for an added effect's final fit
     candidates: tuple[str, ...] = EFFECT_NAMES
     auto_max: int = 4              # at most this many effects added by --auto
-    auto_alternatives: int = 1     # --auto also starts from the next this many candidates (``add.other_starts``)
-    finest: str = "joint"          # the finest granularity an added per-joint effect may get (``add.choose_fit``)
+    auto_alternatives: int = 1     # --auto also starts from the next this many candidates (``policy.other_starts``)
+    finest: str = "joint"          # the finest granularity an added per-joint effect may get (``policy.choose_fit``)
     threads: int | None = None
     seed: int = 0
 
@@ -78,8 +79,6 @@ class DiagnoseConfig:
                 raise UserError(f"{name} must be >= 8")
         if self.auto_alternatives < 0:
             raise UserError("auto_alternatives must be >= 0")
-        from acn.diagnosis.fitting import GRANULARITIES
-
         if self.finest not in GRANULARITIES:
             raise UserError(f"finest must be one of {', '.join(GRANULARITIES)}, got {self.finest!r}")
 

@@ -23,24 +23,24 @@ JSON keys (the machine-readable contract):
 - ``where``: the breakdown (``where`` module) with its ``summary``;
 - ``ranking``: best first, each ``name``, ``params`` (as in a model file), ``granularity``,
   ``free_parameters`` (``value``, ``stderr`` and ``identified`` each: false when the standard
-  error exceeds half the largest realistic magnitude, ``rank.unidentified``), ``explained``
+  error exceeds half the largest realistic magnitude, ``policy.unidentified``), ``explained``
   (share 0..1 of the error above the noise floor), ``removed`` (share of the whole error),
-  ``z``, ``significant``, ``significant_by`` (``"one step"``, ``"longest horizon"``: ``rank.uneven``;
+  ``z``, ``significant``, ``significant_by`` (``"one step"``, ``"longest horizon"``: ``policy.uneven``;
   null when not significant), ``score``, ``implausible`` (why it cannot be the explanation, "" if it
-  can: ``rank.doubt``), ``longest_horizon_removed`` (share of the open-loop error at the
-  check's horizon, ``step.check_horizon``, it removes; null where not checked: ``rank.screen``);
+  can: ``policy.doubt``), ``longest_horizon_removed`` (share of the open-loop error at the
+  check's horizon, ``step.check_horizon``, it removes; null where not checked: ``policy.screen``);
 - ``added`` (with ``--add`` / ``--auto``): in order, ``name``, ``params``, ``granularity``,
   ``refines`` (the granularity of an effect added before and fitted finer in this step, else
   null), ``same_physics_as`` (the effect in the words of those it reproduces while the PD is
-  unsaturated, ``Effect.alike``: PD gains as motor strength and joint damping; else null),
+  unsaturated, ``EffectTraits.alike``: PD gains as motor strength and joint damping; else null),
   ``one_step_ties`` (``--auto``'s effects and the first one ``--add`` names: the candidate it was
   added as, then those of the same ranking the held-out one step could not tell from it,
-  ``rank.tied_either_way``, each ``name``, ``params`` of its ranking fit, ``removed`` and
+  ``policy.tied_either_way``, each ``name``, ``params`` of its ranking fit, ``removed`` and
   ``longest_horizon_removed`` as in ``ranking``; [] if none),
   ``error_before`` and ``error_after`` (horizon -> group), ``headline_before``,
   ``headline_after``, ``explained``;
 - ``same_physics_together``: effects of the final model that together are the same physics as one
-  catalogue effect not in it while the PD is unsaturated (``Effect.together``: motor strength +
+  catalogue effect not in it while the PD is unsaturated (``EffectTraits.together``: motor strength +
   joint damping as PD gains), each ``effects`` and ``as``; [] if none;
 - ``model`` and ``final_model``: the model files before and after;
 - ``closed_loop`` (with ``--closed-loop``, else null): the robot re-run beside the model from
@@ -72,10 +72,11 @@ import numpy as np
 
 from acn.atomic import write_file
 from acn.jsonfile import strict_json
-from acn.diagnosis.add import Added, longer_gain, significant
 from acn.diagnosis.compare import Comparison, group_errors
 from acn.diagnosis.pipeline import Diagnosis
-from acn.diagnosis.rank import Candidate, doubt, fits_noise, unidentified
+from acn.diagnosis.policy import THRESHOLDS, Thresholds, doubt, fits_noise, significant, unidentified
+from acn.diagnosis.results import Added, Candidate, longer_gain
+from acn.diagnosis.traits import traits
 from acn.diagnosis.transfer import closer_by, table as closed_loop_table
 from acn.outputs import Output, json_with_format
 from acn.sim.effects import EFFECT_NAMES, get_effect
@@ -105,16 +106,16 @@ def _errors(c: Comparison) -> dict:
     return {str(h): {g: round(v, 6) for g, v in e.items()} for h, e in sorted(c.error.items())}
 
 
-def _free(fit) -> list[dict]:
-    loose = set(unidentified(fit))
+def _free(fit, t: Thresholds = THRESHOLDS) -> list[dict]:
+    loose = set(unidentified(fit, t=t))
     return [{"name": n, "value": float(v), "stderr": float(e), "identified": n not in loose}
             for n, v, e in zip(fit.names, fit.x, fit.stderr)]
 
 
-def _noise_fit_text(a: Added) -> str:
+def _noise_fit_text(a: Added, t: Thresholds = THRESHOLDS) -> str:
     """A warning when an added effect (``--add``) lowers the one-step error only ("" otherwise)."""
     g = longer_gain(a)
-    if not fits_noise(g):
+    if not fits_noise(g, t=t):
         return ""
     return (f"it raises the open-loop error at the longest horizon ({-g:+.0%}): it may fit what sensor noise in "
             "the measured start states does rather than a physical effect")
@@ -125,13 +126,14 @@ def _kd(d: Diagnosis) -> float:
     return float(np.mean(np.atleast_1d(d.problem.control.kd)))
 
 
-def _alike(a: Added, kd: float) -> str:
-    return a.fit.effect.alike(a.fit.values, kd) if a.fit.effect.alike else ""
+def _alike(a: Added, kd: float, t: Thresholds = THRESHOLDS) -> str:
+    alike = traits(a.name).alike
+    return alike(a.fit.values, kd, t.smallest_share) if alike else ""
 
 
-def _alike_text(a: Added, kd: float) -> str:
-    """The added effect in the words of those it reproduces (``Effect.alike``), "" if none."""
-    said = _alike(a, kd)
+def _alike_text(a: Added, kd: float, t: Thresholds = THRESHOLDS) -> str:
+    """The added effect in the words of those it reproduces (``EffectTraits.alike``), "" if none."""
+    said = _alike(a, kd, t)
     return f"while the PD is unsaturated, the same physics as: {said}" if said else ""
 
 
@@ -161,13 +163,14 @@ def _ties_text(a: Added) -> str:
 
 def _together(d: Diagnosis) -> list[dict]:
     """Effects of the final model that together are the same physics as one catalogue effect not in
-    it, while the PD is unsaturated (``Effect.together``: motor strength + joint damping are PD
+    it, while the PD is unsaturated (``EffectTraits.together``: motor strength + joint damping are PD
     gains): each ``effects`` and ``as``, the reading."""
     held = {t.name: t.values for t in d.final.model.effects}
     out = []
     for effect in map(get_effect, EFFECT_NAMES):
-        if effect.together and effect.name not in held and effect.reproduces and set(effect.reproduces) <= set(held):
-            said = effect.together({n: held[n] for n in effect.reproduces}, _kd(d))
+        together = traits(effect.name).together
+        if together and effect.name not in held and effect.reproduces and set(effect.reproduces) <= set(held):
+            said = together({n: held[n] for n in effect.reproduces}, _kd(d))
             if said:
                 out.append({"effects": list(effect.reproduces), "as": said})
     return out
@@ -183,41 +186,41 @@ def _ties_json(a: Added) -> list[dict]:
              "longest_horizon_removed": None if c.longer_gain is None else round(c.longer_gain, 4)} for c in a.ties]
 
 
-def _notes(a: Added, kd: float) -> list[str]:
+def _notes(a: Added, kd: float, t: Thresholds = THRESHOLDS) -> list[str]:
     """What the report says under an added effect besides its numbers."""
-    return [t for t in (_unidentified_text(a.fit), _noise_fit_text(a), _longer_text(a), _alike_text(a, kd),
-                        _ties_text(a)) if t]
+    return [said for said in (_unidentified_text(a.fit, t), _noise_fit_text(a, t), _longer_text(a, t),
+                              _alike_text(a, kd, t), _ties_text(a)) if said]
 
 
-def _longer_text(a: Added) -> str:
-    """Where the added effect is significant by its longest-horizon gain alone (``add.significant``,
-    ``rank.uneven``), that gain and its one-step figures; "" otherwise."""
-    if a.judgement.significant or not significant(a):
+def _longer_text(a: Added, t: Thresholds = THRESHOLDS) -> str:
+    """Where the added effect is significant by its longest-horizon gain alone (``policy.significant``,
+    ``policy.uneven``), that gain and its one-step figures; "" otherwise."""
+    if a.judgement.significant or not significant(a, t=t):
         return ""
     return (f"significant by its {a.before.check}-step prediction: it removes {longer_gain(a):.0%} of that "
             f"open-loop error, {a.judgement.removed:.1%} of the one-step error ({a.judgement.z:.1f} standard errors, "
             "not significant at one step)")
 
 
-def _unidentified_text(fit) -> str:
-    loose = unidentified(fit)
+def _unidentified_text(fit, t: Thresholds = THRESHOLDS) -> str:
+    loose = unidentified(fit, t=t)
     return (f"not identified by these data (standard error above half the largest realistic magnitude): "
             f"{', '.join(loose)}") if loose else ""
 
 
 def _set_aside_because(d: Diagnosis, c: Candidate) -> str:
-    """Why a significant candidate is not the explanation: ``rank.doubt`` on its ranking fit, or
+    """Why a significant candidate is not the explanation: ``policy.doubt`` on its ranking fit, or
     (``--auto``) its final fit; "" otherwise."""
     if not c.judgement.significant:
         return ""
-    return doubt(c) or (f"--auto: {d.set_aside[c.name]}" if c.name in d.set_aside else "")
+    return doubt(c, t=d.thresholds) or (f"--auto: {d.set_aside[c.name]}" if c.name in d.set_aside else "")
 
 
-def _params_text(fit, most: int = 4) -> str:
+def _params_text(fit, most: int = 4, t: Thresholds = THRESHOLDS) -> str:
     """The fitted free parameters with their standard errors; those of effects refitted with it
     (``fitting.Together``: named "effect.parameter") after "refitted with it", apart, since their
     units differ."""
-    free = _free(fit)
+    free = _free(fit, t)
     own, partners = [f for f in free if "." not in f["name"]], [f for f in free if "." in f["name"]]
     text = _values_text(own, most)
     return f"{text}; refitted with it: {_values_text(partners, most)}" if partners else text
@@ -245,13 +248,13 @@ def _significant(c: Candidate) -> str:
     return ("yes (longest horizon)" if c.judgement.by_longest else "yes") if c.judgement.significant else "no"
 
 
-def _candidate(c: Candidate, floor_mse: float) -> dict:
+def _candidate(c: Candidate, floor_mse: float, t: Thresholds = THRESHOLDS) -> dict:
     j = c.judgement
     return {"name": c.name, "params": c.fit.effect.to_json(c.fit.values), "granularity": c.fit.granularity,
-            "free_parameters": _free(c.fit), "explained": round(j.explained(floor_mse), 4),
+            "free_parameters": _free(c.fit, t), "explained": round(j.explained(floor_mse), 4),
             "removed": round(j.removed, 4), "z": round(j.z, 2), "significant": j.significant,
             "significant_by": ("longest horizon" if j.by_longest else "one step") if j.significant else None,
-            "implausible": doubt(c), "score": round(c.score, 4),
+            "implausible": doubt(c, t=t), "score": round(c.score, 4),
             "longest_horizon_removed": None if c.longer_gain is None else round(c.longer_gain, 4)}
 
 
@@ -262,11 +265,11 @@ def _step(a: Added) -> str:
     return f"added {a.name} ({a.fit.granularity})"
 
 
-def _added(a: Added, floor_mse: float, kd: float) -> dict:
+def _added(a: Added, floor_mse: float, kd: float, t: Thresholds = THRESHOLDS) -> dict:
     return {"name": a.name, "params": a.fit.effect.to_json(a.fit.values), "granularity": a.fit.granularity,
-            "refines": a.refines or None, "same_physics_as": _alike(a, kd) or None,
+            "refines": a.refines or None, "same_physics_as": _alike(a, kd, t) or None,
             "one_step_ties": _ties_json(a),
-            "free_parameters": _free(a.fit), "error_before": _errors(a.before), "error_after": _errors(a.after),
+            "free_parameters": _free(a.fit, t), "error_before": _errors(a.before), "error_after": _errors(a.after),
             "headline_before": a.before.headline, "headline_after": a.after.headline,
             "explained": a.judgement.explained(floor_mse), "removed": a.judgement.removed}
 
@@ -288,8 +291,8 @@ def to_json(d: Diagnosis) -> dict:
         "noise_floor": {"mse": d.floor_mse, "share_of_error": 1.0 - d.structured_share,
                         "by_group": {g: round(v, 6) for g, v in groups.items()}},
         "where": d.where,
-        "ranking": [_candidate(c, d.floor_mse) for c in d.ranking],
-        "added": [_added(a, d.floor_mse, _kd(d)) for a in d.added],
+        "ranking": [_candidate(c, d.floor_mse, d.thresholds) for c in d.ranking],
+        "added": [_added(a, d.floor_mse, _kd(d), d.thresholds) for a in d.added],
         "same_physics_together": _together(d),
         "chains": [c.to_json() for c in d.chains],
         "set_aside_on_final_fit": d.set_aside,
@@ -339,16 +342,17 @@ def terminal(d: Diagnosis) -> str:
     rows = []
     for c in d.ranking:
         j = c.judgement
-        params = _params_text(c.fit)
+        params = _params_text(c.fit, t=d.thresholds)
         rows.append([c.name, c.fit.granularity, f"{j.explained(d.floor_mse):.0%}", f"{j.removed:+.1%}", f"{j.z:.1f}",
                      _significant(c), _longer(c), params])
     out.append(_table(["effect", "fitted as", "explained", "error removed", "z", "significant",
                        f"{d.before.check}-step removed", "parameters"], rows))
-    out += [f"set aside: {c.name} {doubt(c)}" for c in d.ranking if c.judgement.significant and doubt(c)]
+    out += [f"set aside: {c.name} {doubt(c, t=d.thresholds)}" for c in d.ranking
+            if c.judgement.significant and doubt(c, t=d.thresholds)]
     out += [f"set aside by --auto: {name} {why}" for name, why in d.set_aside.items()]
     for a in d.added:
         out += ["", f"{_step(a)}: {a.fit.effect.to_json(a.fit.values)}"]
-        out += _notes(a, _kd(d))
+        out += _notes(a, _kd(d), d.thresholds)
         out += [f"headline {a.before.headline:.4f} -> {a.after.headline:.4f}", error_table(a.before, a.after)]
     together = _together_text(d)
     out += ["", *together] if together else []
@@ -461,11 +465,11 @@ def write_html(d: Diagnosis, path: str | Path) -> Path:
     ranking = "".join(
         f"<tr><td>{c.name}</td><td>{c.fit.granularity}</td><td>{c.judgement.explained(d.floor_mse):.0%}</td>"
         f"<td>{c.judgement.removed:+.1%}</td><td>{c.judgement.z:.1f}</td><td>{_longer(c)}</td>"
-        f"<td>{html.escape(_params_text(c.fit))}</td><td>{html.escape(_set_aside_because(d, c))}</td>"
+        f"<td>{html.escape(_params_text(c.fit, t=d.thresholds))}</td><td>{html.escape(_set_aside_because(d, c))}</td>"
         "</tr>" for c in d.ranking)
-    added = "".join(f"<li>{html.escape(_step(a))} {html.escape(_params_text(a.fit))}: headline "
+    added = "".join(f"<li>{html.escape(_step(a))} {html.escape(_params_text(a.fit, t=d.thresholds))}: headline "
                     f"{a.before.headline:.4f} &rarr; {a.after.headline:.4f}"
-                    + "".join(f"<br><i>{html.escape(t)}</i>" for t in _notes(a, _kd(d)))
+                    + "".join(f"<br><i>{html.escape(t)}</i>" for t in _notes(a, _kd(d), d.thresholds))
                     + "</li>"
                     for a in d.added) + "".join(f"<li><i>{html.escape(t)}</i></li>" for t in _together_text(d))
     chains = "".join(f"<li>started with {c.start}: <b>{html.escape(c.label)}</b>"

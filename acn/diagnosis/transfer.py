@@ -48,7 +48,7 @@ def robot_config(dataset: str | Path, data: Measurements, side: str, model: Mode
     everything a closed loop needs (called before the diagnosis, so a mistake costs nothing)."""
     from dataclasses import replace
 
-    from acn.datasets.record import config_from_metadata
+    from acn.datasets.metadata import config_from_metadata
     from acn.corrector.evaluate import held_out
     from acn.sim.hidden import answer_path
     from acn.sim.policies import POLICIES

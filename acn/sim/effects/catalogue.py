@@ -36,10 +36,11 @@ latency and a softer ground were named instead.
 
 from __future__ import annotations
 
+import copyreg
+
 import numpy as np
 
 from acn.errors import UserError
-from acn.sim import stance as stance_feet
 from acn.sim.effects.effect import Effect, Parameter
 from acn.sim.robot import GROUND_TIMECONST, ModelParams
 from acn.sim.state import NUM_JOINTS
@@ -79,34 +80,6 @@ def strength_damping_as_pd_gains(strength: float, damping: float, kd: float) -> 
     return strength, strength + damping / kd
 
 
-def _pd_gains_alike(values, kd: float) -> str:
-    """PD gains as motor strength and joint damping (``pd_gains_as_strength_damping``), in words;
-    or, keeping the gains, kp_scale alone and joint damping (kd_scale - 1) kd. Means over joints;
-    "" where kd is 0 or the derivative gain is below what strength alone gives (no damping is
-    negative)."""
-    kp_s, kd_s = float(np.mean(values["kp_scale"])), float(np.mean(values["kd_scale"]))
-    smallest = 0.75 * CATALOGUE["joint_damping"].parameters[0].realistic[0]  # what rank.too_small calls none
-    _, damping = pd_gains_as_strength_damping(kp_s, kd_s, kd)
-    if kd <= 0 or damping < -smallest:
-        return ""
-    if damping < smallest:
-        return f"motor_strength {kp_s:.3g}"
-    out = f"motor_strength {kp_s:.3g} + joint_damping {damping:.3g} N m s/rad"
-    if (kd_s - 1.0) * kd >= smallest:
-        out += f"; kp x{kp_s:.3g} alone + joint_damping {(kd_s - 1.0) * kd:.3g} N m s/rad"
-    return out
-
-
-def _pd_gains_together(values: dict, kd: float) -> str:
-    """Motor strength and joint damping together as PD gains (``strength_damping_as_pd_gains``),
-    in words. Means over joints; "" where kd is 0."""
-    if kd <= 0:
-        return ""
-    kp_s, kd_s = strength_damping_as_pd_gains(float(np.mean(values["motor_strength"]["scale"])),
-                                              float(np.mean(values["joint_damping"]["value"])), kd)
-    return f"pd_gains kp_scale {kp_s:.3g}, kd_scale {kd_s:.3g}"
-
-
 def _payload(params: ModelParams, values) -> None:
     params.payload_mass = float(values["mass"])
     params.payload_com = np.array([values["com_x"], values["com_y"], values["com_z"]], dtype=float)
@@ -122,28 +95,6 @@ def _ground_softness(params: ModelParams, values) -> None:
 
 def _base_frame_offset(params: ModelParams, values) -> None:
     params.base_frame_offset = np.array([*(values[k] for k in ("x", "y", "z", "roll", "pitch")), 0.0], dtype=float)
-
-
-def _base_frame_check(states: np.ndarray, values) -> str:
-    """A measured frame must put the feet that carry the robot closer to the ground than the
-    trunk frame does (``acn.sim.stance.Stance``): a frame fitted to what dynamics the model
-    lacks (joint springs: z 3.8 mm, 6.2 mm rms against 3.4) moves them away."""
-    stance = stance_feet.Stance(states)
-    if len(stance.s) < stance_feet.MIN_STANCE_ROWS:
-        return ""
-    frame = np.array([*(float(values[k]) for k in ("x", "y", "z", "roll", "pitch")), 0.0])
-    before, after = stance.carrying(np.zeros(6)), stance.carrying(frame)
-    rms_before, rms_after = (float(np.sqrt(np.mean(h ** 2))) for h in (before, after))
-    if rms_after <= rms_before:
-        return ""
-    return (f"puts the feet that carry the robot further from the ground (rms {rms_after * 1000:.1f} mm, "
-            f"{rms_before * 1000:.1f} mm in the trunk frame)")
-
-
-def _base_frame_guess(states: np.ndarray):
-    """Where the stance feet put the measured frame (``acn.sim.stance.frame_from_stance``)."""
-    frame = stance_feet.frame_from_stance(states)
-    return None if frame is None else dict(zip(("x", "y", "z", "roll", "pitch"), (float(v) for v in frame[:5])))
 
 
 CATALOGUE: dict[str, Effect] = {e.name: e for e in (
@@ -179,14 +130,14 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
            (Parameter("kp_scale", "1", 1.0, 0.2, 3.0, per_joint=True, realistic=(0.6, 0.9)),
             Parameter("kd_scale", "1", 1.0, 0.0, 5.0, per_joint=True, realistic=(0.5, 0.9))),
            _pd_gains, mujoco="actuator gainprm / biasprm", pybullet="gains of the control law",
-           reproduces=("motor_strength", "joint_damping"), alike=_pd_gains_alike, together=_pd_gains_together),
+           reproduces=("motor_strength", "joint_damping")),
     Effect("payload", "a mass rigidly attached to the trunk",
            (Parameter("mass", "kg", 0.0, 0.0, 20.0, realistic=(0.5, 4.0)),
             Parameter("com_x", "m", 0.0, -0.3, 0.3, realistic=(0.0, 0.05), signed=True),
             Parameter("com_y", "m", 0.0, -0.3, 0.3, realistic=(0.0, 0.05), signed=True),
             Parameter("com_z", "m", 0.0, -0.3, 0.3, realistic=(0.0, 0.05), signed=True)),
            _payload, mujoco="trunk mass, ipos and inertia combined with a point mass",
-           pybullet="trunk inertial of the loaded URDF combined with a point mass", fit_over_steps=True),
+           pybullet="trunk inertial of the loaded URDF combined with a point mass"),
     Effect("ground_friction", "foot-ground sliding friction differs",
            (Parameter("value", "1", 1.0, 0.05, 2.0, realistic=(0.2, 0.8)),),
            _ground_friction, mujoco="foot and floor geom friction", pybullet="lateralFriction of the feet"),
@@ -197,7 +148,7 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
     Effect("encoder_offset", "joint encoders read q + value; the PD acts on the reading",
            (Parameter("value", "rad", 0.0, -0.5, 0.5, per_joint=True, realistic=(0.02, 0.15), signed=True),),
            _setter("encoder_offset"), mujoco="actuator bias (-kp offset) and the state's reading",
-           pybullet="the control law's reading and the state's reading", moves_start=True),
+           pybullet="the control law's reading and the state's reading"),
     Effect("backlash", "a dead band in the joint position loop (gear play)",
            (Parameter("value", "rad", 0.0, 0.0, 0.3, per_joint=True, realistic=(0.01, 0.05)),),
            _setter("backlash"), mujoco="motor actuators, the dead-band law computed each physics step",
@@ -216,7 +167,7 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
             Parameter("roll", "rad", 0.0, -0.3, 0.3, realistic=(0.005, 0.05), signed=True),
             Parameter("pitch", "rad", 0.0, -0.3, 0.3, realistic=(0.005, 0.05), signed=True)),
            _base_frame_offset, mujoco="the state's reading of the trunk channels (acn.sim.frames)",
-           pybullet="the same reading", guess=_base_frame_guess, reading_only=True, check=_base_frame_check),
+           pybullet="the same reading"),
 )}
 EFFECT_NAMES: tuple[str, ...] = tuple(CATALOGUE)
 
@@ -226,3 +177,11 @@ def get_effect(name: str) -> Effect:
     if not isinstance(name, str) or name not in CATALOGUE:  # a model file may hold any JSON value here
         raise UserError(f"unknown effect {name!r}; the catalogue: {', '.join(EFFECT_NAMES)}")
     return CATALOGUE[name]
+
+
+def _by_name(effect: Effect) -> tuple:
+    """How a catalogue effect travels to worker processes: by its name (its modifier may be a closure)."""
+    return get_effect, (effect.name,)
+
+
+copyreg.pickle(Effect, _by_name)

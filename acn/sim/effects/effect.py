@@ -4,7 +4,9 @@ modifier that writes them into the robot description (``ModelParams``) both back
 The pattern is ``mujoco.sysid``'s ``Parameter`` with a spec modifier, one level up: the
 modifier writes ``ModelParams`` instead of an ``MjSpec``, and each backend realises
 ``ModelParams`` in its own simulator (``Effect.mujoco`` / ``Effect.pybullet`` say where), so
-one effect object serves both simulators.
+one effect object serves both simulators. An effect holds its physics only (what its parameters
+are, what they change, which other effects it reproduces); how the diagnosis fits and judges it
+is ``acn.diagnosis.traits``.
 
 Values. A parameter's value is a float, or for a joint parameter (``per_joint``) a (12,) array
 in ``JOINT_NAMES`` order. In JSON a joint parameter is one shared number, a list of 12, or a
@@ -58,31 +60,12 @@ class Effect:
     modifier: Callable[[ModelParams, Values], None]
     mujoco: str     # where MuJoCo realises it
     pybullet: str   # where PyBullet realises it
-    guess: Callable[[np.ndarray], "Values | None"] | None = None  # a cheap first estimate from measured
-    # states (N, 43) where one exists (e.g. by kinematics); a fit starts from it
-    reading_only: bool = False  # changes how the state is read, not the physics (acn.diagnosis.rank)
-    moves_start: bool = False   # moves the measured start state against the ground (encoder offsets move the
-    # feet): its chosen fit is refined with central differences (acn.diagnosis.add.refine_chain)
-    check: Callable[[np.ndarray, Values], str] | None = None  # measured states (N, 43) and fitted values ->
-    # why the data contradict them without any simulation ("" where they agree; e.g. by kinematics)
-    fit_over_steps: bool = False  # its final fit is refined on predictions several steps ahead, where start-state
-    # noise biases a one-step fit and no instrument corrects it (acn.diagnosis.fitting.multistep_refit)
     reproduces: tuple[str, ...] = ()  # effects it equals at some values of its parameters while the joint PD is
-    # unsaturated (pd_gains: motor_strength at equal kp and kd scales); acn.diagnosis.rank.tied_with_best
-    alike: Callable[[Values, float], str] | None = None  # fitted values and the commanded kd (N m s/rad) -> the
-    # same physics in the words of the effects it reproduces ("" where none), for the report
-    together: Callable[[dict[str, Values], float], str] | None = None  # the fitted values of every effect it
-    # reproduces (name -> values) and the commanded kd -> the same physics in its own words: ``alike`` reversed
+    # unsaturated (pd_gains: motor_strength at equal kp and kd scales)
 
     @property
     def per_joint(self) -> bool:
         return any(p.per_joint for p in self.parameters)
-
-    def __reduce__(self):
-        """Worker processes receive an effect by its catalogue name (its modifier is a closure)."""
-        from acn.sim.effects.catalogue import get_effect
-
-        return (get_effect, (self.name,))
 
     def parameter(self, name: str) -> Parameter:
         for p in self.parameters:
