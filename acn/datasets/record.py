@@ -9,7 +9,7 @@ the same work as one pure call, which Ray runs instead with ``ray=RayConfig(...)
 the same writer loop, so the dataset is byte-identical to a local one with the same seed).
 ``shards=K`` (Ray only) writes K datasets in parallel and merges them (``acn.datasets.shards``).
 
-Ctrl-C or SIGTERM stops the collection and raises ``Interrupted``. Into a new ``out``, the
+Ctrl-C or SIGTERM stops the collection and raises ``acn.datasets.stream.Interrupted``. Into a new ``out``, the
 finished episodes are committed as a valid dataset (nothing is written if none finished). Over
 an existing dataset (``overwrite``), nothing of the interrupted run is kept: the dataset there
 stays as it was, since only a complete collection replaces it. The writer loop that does this is
@@ -24,9 +24,8 @@ import signal
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Iterator, Sequence
 
-from acn.datasets.metadata import collection_metadata, config_from_metadata
 from acn.datasets.shards import record_shards
-from acn.datasets.stream import Interrupted, write_stream
+from acn.datasets.stream import write_stream
 from acn.errors import UserError
 from acn.sim.collector import CollectConfig, Episode, LoadCorrector, rollout_for
 
