@@ -390,7 +390,7 @@ def fit_main(argv: list[str] | None = None) -> int:
         with _ray_executor(args, "acn-fit"):
             model, metrics = fit(args.datasets, cfg, log=lambda line: print(line, file=sys.stderr), target=target)
         path = save(model, metrics, args.out, overwrite=args.overwrite)
-        simulator = model.card.training_data.target.name
+        simulator = model.card.training_data.target.simulator
         physics = shlex.join(["acn-diagnose", str(args.datasets[0]), "--side", "source", "--model",
                               str(args.model or simulator),
                               "--auto", "--closed-loop", "4", "--corrector", str(path)]) \

@@ -22,7 +22,8 @@ from acn.measurements.data import load_measurements
 from acn.datasets.reader import load_frames, load_paired
 from acn.errors import UserError
 from acn.corrector.card import CorrectorCard
-from acn.corrector.corrector import CONFIG, WEIGHTS, Corrector
+from acn.corrector.corrector import Corrector
+from acn.weights import CONFIG, WEIGHTS
 from acn.sim.effects import Model
 
 SETTINGS = settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])

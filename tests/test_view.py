@@ -29,7 +29,8 @@ def make_corrector(directory, bias: float = 0.0, **config_changes):
     import json
 
     from acn.corrector.card import CorrectorCard
-    from acn.corrector.corrector import CONFIG, Corrector
+    from acn.corrector.corrector import Corrector
+    from acn.weights import CONFIG
 
     model = Corrector(CorrectorCard.untrained("mujoco-jacobian", hidden=16, layers=1))
     with torch.no_grad():

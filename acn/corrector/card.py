@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
 
 from acn.corrector.acn import OUTPUT_CHANNELS, VARIANTS, input_channels
+from acn.datasets.metadata import Simulator
 from acn.errors import UserError
 from acn.sim.state import ACTION_DIM, ACTION_NAMES, STATE_NAMES
 
@@ -36,17 +37,6 @@ class Network:
     hidden: int
     layers: int
     activation: str = "SiLU"
-
-
-@dataclass(frozen=True)
-class Simulator:
-    """A simulator a dataset was recorded in, as the dataset names it."""
-
-    name: str
-    version: str | None = None
-
-    def to_json(self) -> dict:
-        return {"simulator": self.name, "version": self.version}
 
 
 @dataclass(frozen=True)
@@ -125,8 +115,8 @@ class CorrectorCard:
         def refuse(fitted_for: str, here: str, hint: str = "") -> None:
             raise UserError(f"corrector {directory} was fitted for {fitted_for}; here {here}{hint}")
 
-        if t.target is not None and t.target.name != target.simulator:
-            refuse(f"a {t.target.name} target", f"the target is {target.simulator}")
+        if t.target is not None and t.target.simulator != target.simulator:
+            refuse(f"a {t.target.simulator} target", f"the target is {target.simulator}")
         if t.action_mode is not None and t.action_mode != target.action_mode:
             refuse(f"{t.action_mode}-mode actions", f"the actions are {target.action_mode}-mode")
         if t.control_hz is not None and abs(t.control_hz - target.control_hz) > 1e-6:
@@ -247,7 +237,7 @@ def _training_data(read: _Reader, data: dict) -> TrainingData:
 
     def simulator(key: str) -> Simulator | None:
         v = read(data, key, _simulator, 'an object with a "simulator" name and a "version"', p, default=None)
-        return None if v is None else Simulator(v["simulator"], v["version"])
+        return None if v is None else Simulator(simulator=v["simulator"], version=v["version"])
 
     effects = read(data, "target_effects", lambda v: isinstance(v, list) and all(
         isinstance(e, dict) and isinstance(e.get("name"), str) for e in v), 'a list of effects ({"name": ...})', p,

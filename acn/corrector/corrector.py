@@ -10,24 +10,22 @@ Nothing is pickled: weights are safetensors, everything else is JSON.
 
 from __future__ import annotations
 
-import json
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
 import numpy as np
 import torch
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file
 from torch import nn
 
 from acn.corrector.acn import LEARNED_JACOBIAN, ActionCorrectionNetwork
 from acn.corrector.card import FORMAT, CorrectorCard, TargetDescription
 from acn.errors import UserError
-from acn.jsonfile import read_json
 from acn.outputs import Output, json_with_format
 from acn.sim.state import ACTION_DIM, STATE_DIM, STATE_NAMES
+from acn.weights import CONFIG, WEIGHTS, corrupt_weights, read_config, save_weights
 
-WEIGHTS, CONFIG = "model.safetensors", "config.json"
 # A corrector directory is recognised by its card (config.json with this format).
 CORRECTOR = Output("corrector directory", directory=True,
                    recognise=lambda d: json_with_format(FORMAT)(d / CONFIG))
@@ -87,27 +85,20 @@ class Corrector(nn.Module):
     # ----- files ----------------------------------------------------------------------------
     def save(self, directory: str | Path) -> None:
         """Write ``model.safetensors`` and ``config.json`` into ``directory`` (must exist)."""
-        d = Path(directory)
-        tensors = {k: v.detach().contiguous().cpu() for k, v in self.state_dict().items()}
-        save_file(tensors, str(d / WEIGHTS), metadata={"format": FORMAT})
-        (d / CONFIG).write_text(json.dumps(self.card.to_json(), indent=2))
+        save_weights(directory, self, self.card.to_json(), FORMAT)
 
     @classmethod
     def load(cls, directory: str | Path) -> "Corrector":
         """Load a frozen corrector; a clear ``UserError`` for a missing, corrupt or foreign file."""
         d = Path(directory)
-        missing = f"{d} is not a corrector directory (needs {CONFIG} and {WEIGHTS})"
-        if not (d / WEIGHTS).is_file():
-            raise UserError(missing)
-        card = CorrectorCard.from_json(read_json(d / CONFIG, missing), where=str(d / CONFIG), directory=d)
+        card = CorrectorCard.from_json(read_config(d, "corrector"), where=str(d / CONFIG), directory=d)
         try:
             model = cls(card)
             tensors = load_file(str(d / WEIGHTS))
             model.load_state_dict(tensors, strict=True)
             probe = model.correct(np.zeros((1, STATE_DIM)), np.zeros((1, ACTION_DIM)))  # card and weights agree
         except Exception as e:  # noqa: BLE001 - a broken weights file can fail in many ways
-            raise UserError(f"{d / WEIGHTS} is corrupt or does not match its config: "
-                            f"{(str(e).splitlines() or [type(e).__name__])[0]}") from None
+            raise corrupt_weights(d, e) from None
         if not np.isfinite(probe).all():
             raise UserError(f"{d / WEIGHTS} gives non-finite corrections (corrupt weights or normalisation)")
         return model.freeze()

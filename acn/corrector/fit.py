@@ -56,7 +56,7 @@ import torch
 
 from acn.atomic import move_into_place, temporary_beside
 from acn.corrector.acn import LABELLED, OUTPUT_CHANNELS
-from acn.corrector.card import CorrectorCard, Simulator, TrainingData
+from acn.corrector.card import CorrectorCard, TrainingData
 from acn.corrector.config import FitConfig
 from acn.corrector.corrector import CORRECTOR, Corrector
 from acn.corrector.evaluate import output_spread
@@ -64,7 +64,7 @@ from acn.corrector.rows import (INPUT_INDEX, OUTPUT_INDEX, Labelled, Normaliser,
                                 split_episodes)
 from acn.corrector.train import train
 from acn.corrector.variants import MIN_TRAIN_ROWS, Rows, Targets, Variant, objective, strategy
-from acn.datasets.metadata import config_from_metadata
+from acn.datasets.metadata import Simulator, config_from_metadata
 from acn.datasets.reader import PairedTransitions, load_paired, percentile_filter
 from acn.errors import UserError
 from acn.jsonfile import strict_json
@@ -380,7 +380,7 @@ def corrector_card(model: Corrector, cfg: FitConfig, norm: Normaliser, data: Fit
     info = data.paired.info
 
     def simulator(s) -> Simulator | None:
-        return None if s is None else Simulator(s.simulator, s.version)
+        return None if s is None else Simulator(simulator=s.simulator, version=s.version)  # not the log's files
 
     training_data = TrainingData(
         datasets=tuple(data.paired.sources), fingerprint=fingerprint(data.paired.sources),

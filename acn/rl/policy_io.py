@@ -17,25 +17,23 @@ An SB3 ``.zip`` holds cloudpickled objects: ``acn-ppo`` keeps one only to resume
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, fields
 from pathlib import Path
 
 import numpy as np
 import torch
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file
 from torch import nn
 
 from acn.errors import UserError
-from acn.jsonfile import read_json
 from acn.sim.backends import SimConfig
 from acn.sim.collector import InitNoise
 from acn.sim.envs import EnvConfig, Residual
 from acn.sim.policies import make_policy
 from acn.sim.robot import ModelParams
 from acn.sim.state import ACTION_DIM, ACTION_NAMES, STATE_DIM, STATE_NAMES
+from acn.weights import CONFIG, WEIGHTS, corrupt_weights, read_config, save_weights
 
-WEIGHTS, CONFIG = "model.safetensors", "config.json"
 FORMAT = "acn-ppo-policy/1"
 ACTIVATIONS = {"Tanh": nn.Tanh, "ReLU": nn.ReLU, "SiLU": nn.SiLU, "ELU": nn.ELU}
 
@@ -114,19 +112,13 @@ class WalkingPolicy(nn.Module):
     # ----- files --------------------------------------------------------------------------
     def save(self, directory: str | Path) -> None:
         """Write ``model.safetensors`` and ``config.json`` into ``directory`` (must exist)."""
-        d = Path(directory)
-        tensors = {k: v.detach().contiguous().cpu() for k, v in self.state_dict().items()}
-        save_file(tensors, str(d / WEIGHTS), metadata={"format": FORMAT})
-        (d / CONFIG).write_text(json.dumps({**self.config, "format": FORMAT}, indent=2))
+        save_weights(directory, self, {**self.config, "format": FORMAT}, FORMAT)
 
     @classmethod
     def load(cls, directory: str | Path) -> "WalkingPolicy":
         """Load a policy; a one-line ``UserError`` for a missing, corrupt or foreign directory."""
         d = Path(directory)
-        missing = f"{d} is not a policy directory (needs {CONFIG} and {WEIGHTS})"
-        if not (d / WEIGHTS).is_file():
-            raise UserError(missing)
-        config = read_json(d / CONFIG, missing)
+        config = read_config(d, "policy")
         if not isinstance(config, dict) or config.get("format") != FORMAT:
             raise UserError(f"{d / CONFIG} is not an acn policy config (format {FORMAT!r} expected)")
         check_schema(config, str(d))
@@ -134,8 +126,7 @@ class WalkingPolicy(nn.Module):
             model = cls(config)
             model.load_state_dict(load_file(str(d / WEIGHTS)), strict=True)
         except Exception as e:  # noqa: BLE001 - a broken config or weights file can fail in many ways
-            raise UserError(f"{d / WEIGHTS} is corrupt or does not match its config: "
-                            f"{(str(e).splitlines() or [type(e).__name__])[0]}") from None
+            raise corrupt_weights(d, e) from None
         return model
 
 

@@ -149,7 +149,6 @@ class PPOConfig:
         small = dict(n_steps=n_steps, batch_size=min(self.batch_size, n_steps * self.n_envs), final_eval_episodes=2,
                      eval_seconds=2.0, eval_every=0, refit_episodes=2, refit_seconds=2.0, fit_epochs=2,
                      oracle_episodes=0)
-        keep = {{"envs": "n_envs", "variant": "corrector_variant"}.get(k, k) for k in keep}
         return replace(self, **{k: v for k, v in small.items() if k not in keep})
 
     def sim(self) -> SimConfig:
