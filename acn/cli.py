@@ -788,6 +788,7 @@ def diagnose_parser() -> argparse.ArgumentParser:
     p.add_argument("--explain-corrector", type=Path, default=None, metavar="DIR",
                    help="explain a corrector from acn-fit: which effects its corrections look like")
     p.add_argument("--list-effects", action="store_true", help="print the catalogue of effects and exit")
+    p.add_argument("--verbose", action="store_true", help="print the time of every stage as it ends")
     p.add_argument("--limits", action="store_true",
                    help="then the smallest size of each effect not named that this log would show: what it rules out")
     p.add_argument("--limits-per-joint", action="store_true",
@@ -837,6 +838,7 @@ def diagnose_main(argv: list[str] | None = None) -> int:
             raise UserError("give the measurement dataset (or --list-effects)")
         from acn.measurements.data import load_measurements
         from acn.diagnosis import ClosedLoop, DiagnoseConfig, Stages, run
+        from acn.diagnosis.clock import StageClock
         from acn.diagnosis.report import terminal, write_html, write_json
         from acn.sim.effects import Model
 
@@ -871,14 +873,19 @@ def diagnose_main(argv: list[str] | None = None) -> int:
                 if fraction is not None:
                     bar.update(int(round(100 * fraction)) - bar.n)
 
-            result = run(data, model, cfg, stages, progress=say)
+            clock = StageClock(verbose=(lambda line: bar.write(f"  {line}")) if args.verbose else None)
+            result = run(data, model, cfg, stages, progress=say, clock=clock)
         print(terminal(result))
+        if args.verbose:
+            print("stages: " + ", ".join(f"{name} {s:.1f} s" for name, s in result.stages.items())
+                  + f"; total {result.seconds['total']:.1f} s")
         if args.json:
             print(f"wrote {write_json(result, args.json)}")
         if args.report:
             print(f"wrote the report {write_html(result, args.report)}")
         if args.save_model:
-            print(f"wrote the model {result.final.model.save(args.save_model)}")
+            print(f"wrote the model {result.model.save(args.save_model)}"
+                  + (" (as given: the effects added do not hold)" if result.model is not result.final.model else ""))
         return 0
 
     return _run("acn-diagnose", body)

@@ -104,6 +104,7 @@ from acn.measurements.importer import ImportConfig, import_log  # noqa: E402
 from acn.measurements.data import load_measurements  # noqa: E402
 from acn.diagnosis import DiagnoseConfig, diagnose  # noqa: E402
 from acn.diagnosis.pipeline import rule_out  # noqa: E402
+from acn.diagnosis.results import held  # noqa: E402
 from acn.sim.backends import IMU_ACC_KINDS  # noqa: E402
 from acn.sim.effects import CATALOGUE, Model  # noqa: E402
 from acn.sim.effects.catalogue import pd_gains_as_strength_damping, strength_damping_as_pd_gains  # noqa: E402
@@ -136,6 +137,25 @@ def _soft_ground(timeconst: float):
     def edit(spec):
         for g in spec.geoms:
             g.solref = [timeconst, 1.0]
+    return edit
+
+
+def _calves(length: float):
+    """Every calf ``length`` m long instead of 0.2 (the foot moved along it): a wrong geometry."""
+    def edit(spec):
+        for b in spec.bodies:
+            if b.name.endswith("_toe"):
+                b.pos[2] = -length
+    return edit
+
+
+def _link_mass(suffix: str, factor: float):
+    """Every body named ``*suffix`` ``factor`` times as heavy (its inertia alike): a wrong link mass."""
+    def edit(spec):
+        for b in spec.bodies:
+            if b.name.endswith(suffix):
+                b.mass *= factor
+                b.inertia = [factor * x for x in b.inertia]
     return edit
 
 
@@ -174,6 +194,13 @@ CASES = {
     # the motor follows its commands through a first-order low-pass (a driver's bandwidth), which a
     # latency would stand in for without actuator_lag in the catalogue
     "actuator lag": ({"command_lag": 0.015}, "effect", "actuator_lag", "timeconst", 0.015),
+    # structure outside the catalogue, which a sum of flexible effects would paper over: the calves 10 % long,
+    # the thighs half as heavy again (1.52 kg instead of 1.01)
+    "long calves (outside)": ({"spec_edit": _calves(0.22)}, "unexplained", None, None, None),
+    "heavy thighs (outside)": ({"spec_edit": _link_mass("_upper", 1.5)}, "unexplained", None, None, None),
+    # one worn joint (RL_thigh damping 2.0, the eleven others nominal): named per joint, on that joint
+    "worn RL_thigh": ({"spec_edit": _joints("damping", 2.0, "RL_thigh")}, "effect", "joint_damping", "value",
+                      np.where(np.array(JOINT_NAMES) == "RL_thigh", 2.0, 0.0)),
 }
 
 
@@ -233,6 +260,17 @@ PAIRS = {
                              [("actuator_latency", "seconds", 0.01), ("motor_strength", "scale", 0.5, "FR_calf")]),
     "payload+damping RL_thigh": ({"spec_edit": _both(_payload, _joints("damping", 2.0, "RL_thigh"))},
                                  [("payload", "mass", 2.0), ("joint_damping", "value", 2.0, "RL_thigh")]),
+}
+
+
+# name -> (LogSpec overrides, [(effect, parameter, true value[, the one joint it is on]), ...] x 3); --triples
+TRIPLES = {
+    "latency+damping+payload": ({"latency_steps": 10, "spec_edit": _both(_payload, _joints("damping", 0.4))},
+                                [("actuator_latency", "seconds", 0.01), ("joint_damping", "value", 0.4),
+                                 ("payload", "mass", 2.0)]),
+    "strength+friction+latency": ({"strength": 0.85, "latency_steps": 12, "spec_edit": _joints("frictionloss", 0.2)},
+                                  [("motor_strength", "scale", 0.85), ("joint_friction", "value", 0.2),
+                                   ("actuator_latency", "seconds", 0.012)]),
 }
 
 
@@ -437,8 +475,9 @@ def diagnose_pair(args, name: str, stem: str, over: dict, truth: list, seed: int
           f"{' '.join(cells)}{also}{aside} {time.perf_counter() - t:.0f}s", flush=True)
 
 
-def pairs(args, root: Path) -> None:
-    """The ``PAIRS`` cases, or the ``--draws``, one line each, then the totals."""
+def pairs(args, root: Path, cases: dict = PAIRS, seed: int = 300) -> None:
+    """The ``PAIRS`` (or ``TRIPLES``) cases, or the ``--draws``, one line each, then the totals
+    (``pairs_both_named``: every hidden effect added and nothing else, ``triples_...`` for triples)."""
     tally = {"named": [0, 0], "same": [0, 0], "within": [0, 0], "short": [0, 0]}
     if args.draws:
         for k in range(*args.draws):
@@ -446,16 +485,17 @@ def pairs(args, root: Path) -> None:
             print(f"d{k} ({over['controller']}): {name}", flush=True)
             diagnose_pair(args, f"d{k}", f"d{k}", over, truth, args.seed0 + k, root, tally)
     else:
-        for i, (name, (over, truth)) in enumerate(PAIRS.items()):
+        for i, (name, (over, truth)) in enumerate(cases.items()):
             if args.cases and name not in args.cases.split(","):
                 continue
             if skipped(args, name, over):
                 continue
-            diagnose_pair(args, name, f"p{i}", over, truth, 300 + i, root, tally)
-    print(f"pairs_both_named={tally['named'][0]}/{tally['named'][1]}")
-    print(f"pairs_named_or_same_physics={tally['same'][0]}/{tally['same'][1]}")
-    print(f"pairs_within_15pct={tally['within'][0]}/{tally['within'][1]}")
-    print(f"pairs_missed_short_of_limit={tally['short'][0]}/{tally['short'][1]}")
+            diagnose_pair(args, name, f"p{seed + i}", over, truth, seed + i, root, tally)
+    what = "triples_all" if cases is TRIPLES and not args.draws else "pairs_both"
+    print(f"{what}_named={tally['named'][0]}/{tally['named'][1]}")
+    print(f"{what.split('_')[0]}_named_or_same_physics={tally['same'][0]}/{tally['same'][1]}")
+    print(f"{what.split('_')[0]}_within_15pct={tally['within'][0]}/{tally['within'][1]}")
+    print(f"{what.split('_')[0]}_missed_short_of_limit={tally['short'][0]}/{tally['short'][1]}")
 
 
 def _draws(text: str) -> tuple[int, int]:
@@ -476,6 +516,7 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--cases", default=None, help="comma-separated names (default: every case of the set)")
     ap.add_argument("--other", action="store_true", help="the OTHER set: values and seeds the rules never saw")
     ap.add_argument("--pairs", action="store_true", help="logs with two hidden effects instead (PAIRS)")
+    ap.add_argument("--triples", action="store_true", help="logs with three hidden effects instead (TRIPLES)")
     ap.add_argument("--draws", default=None, metavar="K0:K1", type=_draws,
                     help="fresh random pairs k = K0..K1-1 instead (seeds --seed0 + k; see draw)")
     ap.add_argument("--one-joint", action="store_true",
@@ -522,12 +563,13 @@ def main() -> None:
         ap.error("--stance-gains takes two multiples, KP,KD")
     root = args.keep or Path(tempfile.mkdtemp())
     root.mkdir(parents=True, exist_ok=True)
-    cases, seed = (PAIRS, 300) if args.pairs else (OTHER, 700) if args.other else (CASES, 100)
+    cases, seed = (PAIRS, 300) if args.pairs else (TRIPLES, 900) if args.triples else (OTHER, 700) if args.other \
+        else (CASES, 100)
     unknown = [n for n in (args.cases.split(",") if args.cases else []) if n not in cases]
     if unknown:
         ap.error(f"no case {unknown[0]!r}; the cases: {', '.join(cases)}")
-    if args.pairs or args.draws:
-        return pairs(args, root)
+    if args.pairs or args.triples or args.draws:
+        return pairs(args, root, cases, seed)
     tally = {"ranked_first": [0, 0], "within_15pct": [0, 0], "removed_80pct": [0, 0], "verdict_right": [0, 0]}
     for name in args.cases.split(",") if args.cases else cases:
         over, want, effect, key, true = cases[name]
@@ -554,11 +596,13 @@ def main() -> None:
                 explained = added.judgement.explained(d.floor_mse)
                 tally["within_15pct"][0] += err <= 0.15
                 tally["removed_80pct"][0] += explained >= 0.8
-                line += f" {key}={np.round(f.mean(), 4)} (true {np.round(np.mean(true), 4)}, error {err:.1%}) explained={explained:.0%}"
+                line += (f" {key}={np.round(f.mean(), 4)} (true {np.round(np.mean(true), 4)}, error {err:.1%}) "
+                         f"explained={explained:.0%} per={held(d.final.model, effect)}")
             tally["within_15pct"][1] += 1
             tally["removed_80pct"][1] += 1
         aside = f" set_aside={sorted(d.set_aside)}" if d.set_aside else ""
         print(line + f" added={[a.name for a in d.added]}{aside} {seconds:.0f}s", flush=True)
+        print(f"  stages: {', '.join(f'{k} {v:.0f}' for k, v in d.stages.items())}", flush=True)
         if d.verdict != want:
             print(f"  {d.verdict}: {d.reason}", flush=True)
     for k, (good, n) in tally.items():

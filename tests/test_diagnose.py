@@ -354,11 +354,15 @@ def test_cli_writes_json_report_and_model(tmp_path, capsys):
     args = [str(data_dir), "--model", "mujoco", "--add", "motor_strength", "--json", str(tmp_path / "d.json"),
             "--report", str(tmp_path / "r.html"), "--save-model", str(tmp_path / "model.json"),
             "--horizons", "1,5", "--effects", "motor_strength,joint_damping,actuator_latency",
-            "--closed-loop", "1", "--closed-loop-seconds", "1"]
+            "--closed-loop", "1", "--closed-loop-seconds", "1", "--verbose"]
     assert diagnose_main(args) == 0
     out = capsys.readouterr().out
     assert "verdict: effect" in out and "motor_strength" in out
     result = json.loads((tmp_path / "d.json").read_text())
+    # --verbose: the time of every stage, which the JSON carries too
+    assert list(result["stages"])[:3] == ["compare", "rank", "add motor_strength"], result["stages"]
+    assert "stages: compare" in out and "add motor_strength" in out and result["seconds"]["total"] > 0
+    assert result["named_model"] == result["final_model"]
     # Closed loop: the robot (re-run with its hidden strength from the answer file) beside the
     # model as given and the model with the fitted effect: the physics closes the gap.
     loop = result["closed_loop"]
@@ -855,6 +859,63 @@ def test_auto_holds_an_effect_s_final_fit_to_the_margins_it_asks_of_the_candidat
                                                              "the longest horizon")
     assert too_little(judged(0.97), 0.10, floor_mse=0.9) == ""  # it shows over the longest horizon
     assert too_little(judged(0.6), None, floor_mse=0.1) == ""
+
+
+def test_auto_adds_only_what_the_data_need():
+    """``unneeded``: an effect whose fitted values lie at nominal within their standard errors, or
+    that explains a sliver of the error --auto started from (one step and longest horizon), is
+    not added; one that explains a share of it is. ``nothing_left``: once what is left is
+    smaller than that share, no further effect is looked for."""
+    from acn.diagnosis.compare import Comparison
+    from acn.diagnosis.fitting import EffectFit
+    from acn.diagnosis.heldout import Judgement
+    from acn.diagnosis.policy import nothing_left, unneeded
+    from acn.diagnosis.results import Added
+
+    def comparison(one: float, longest: float) -> Comparison:
+        return Comparison(Model("mujoco"), {}, {1: np.full(4, one), 25: np.full(4, longest)}, np.arange(10),
+                          np.zeros((10, 4)), np.zeros((10, 43)), 0)
+
+    payload = get_effect("payload")
+    nominal = {p.name: p.nominal for p in payload.parameters}
+
+    def step(mass: float, stderr: float, before: Comparison, after: Comparison, mse_before: float,
+             mse_after: float) -> Added:
+        values = {**nominal, "mass": mass, "com_z": 0.005}
+        fit = EffectFit(payload, "shared", values, list(values), np.array([mass, 0.0, 0.0, 0.005]),
+                        np.array([stderr, 0.01, 0.01, 0.01]), Model("mujoco"), 0.0, 0, nominal)
+        return Added(fit, Judgement(mse_before, mse_after, 1 - mse_after / mse_before, 8.0, True, np.zeros((1, 1))),
+                     before, after)
+
+    start, left = comparison(1.0, 1.0), comparison(0.1, 0.1)
+    # 0 kg +- 0.3, its centre 5 mm up +- 1 cm: the data cannot tell it from no payload
+    assert "at nominal within 2 standard errors" in unneeded(step(0.0, 0.3, left, left, 0.011, 0.010), start, 1.0, 0.01)
+    # 2 kg +- 0.1, but it removes 0.1 % of the structured error and of the 25-step error: a fit to what is left
+    tiny = step(2.0, 0.1, left, comparison(0.099, 0.0999), 0.011, 0.010)
+    assert "explains only 0.1%" in unneeded(tiny, start, 1.0, 0.01)
+    # the same values explaining a third of it are added
+    assert unneeded(step(2.0, 0.1, start, comparison(0.8, 0.8), 1.0, 0.66), start, 1.0, 0.01) == ""
+    assert nothing_left(left, 0.01 + 0.02, start, 1.0, 0.01) and not nothing_left(left, 0.2, start, 1.0, 0.01)
+
+
+def test_effects_whose_fits_on_two_halves_disagree_do_not_hold():
+    """``does_not_hold``: two fits of an effect on disjoint halves of the episodes agree within
+    their standard errors (chi^2 under its 0.999 quantile) or the explanation does not hold."""
+    from acn.diagnosis.halves import HalfFits, chi2_quantile
+    from acn.diagnosis.policy import does_not_hold
+
+    # the 0.999 quantiles of chi^2 with 1 and 12 degrees of freedom, within the approximation's few per cent
+    assert abs(chi2_quantile(1, 3.09) / 10.83 - 1) < 0.05 and abs(chi2_quantile(12, 3.09) / 32.91 - 1) < 0.01
+    se = np.full(12, 0.01)
+
+    def halves(second: np.ndarray) -> HalfFits:
+        first = np.full(12, 0.1)
+        chi2 = float(np.sum((first - second) ** 2 / (2 * se ** 2)))
+        return HalfFits("encoder_offset", tuple(f"value[{j}]" for j in JOINT_NAMES), first, second, se, se, chi2)
+
+    assert does_not_hold([halves(np.full(12, 0.1) + 0.01 * np.sin(np.arange(12)))]) == ""
+    why = does_not_hold([halves(np.where(np.arange(12) == 4, 0.2, 0.1))])
+    assert why.startswith("encoder_offset.value[FL_thigh] 0.1 +- 0.01 on one half, 0.2 +- 0.01 on the other"), why
 
 
 def test_the_diagnosis_traits_name_effects_of_the_catalogue():

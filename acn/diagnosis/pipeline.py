@@ -29,15 +29,17 @@ import numpy as np
 from acn.measurements import checks
 from acn.measurements.data import Measurements
 from acn.diagnosis.accelerometer import Accelerometer, read_accelerometer
+from acn.diagnosis.clock import StageClock
 from acn.diagnosis.compare import Comparison, compare, floor_of, informative_horizon
+from acn.diagnosis.halves import HalfFits, fit_halves
 from acn.diagnosis.heldout import structured_share
 from acn.diagnosis.limits import Limit, limits
 from acn.diagnosis.pairing import action_row
-from acn.diagnosis.policy import (THRESHOLDS, Thresholds, add_effect, auto, finer_look, fit_over_steps, floor_after,
-                                  floor_says_noise, needs_finer_look, rank, refine_chain, ties_of, verdict)
+from acn.diagnosis.policy import (THRESHOLDS, Thresholds, add_effect, auto, does_not_hold, finer_look, fit_over_steps,
+                                  floor_after, floor_says_noise, needs_finer_look, rank, refine_chain, ties_of, verdict)
 from acn.diagnosis.problem import DiagnoseConfig, Problem, corrected, prepare
 from acn.diagnosis.rate import physics_rate
-from acn.diagnosis.results import Added, Candidate, Chain
+from acn.diagnosis.results import Added, Candidate, Chain, names
 from acn.diagnosis.traits import traits
 from acn.diagnosis.transfer import closed_loop_models, robot_config
 from acn.diagnosis.where import breakdown
@@ -57,7 +59,9 @@ class Diagnosis:
     added: list[Added]
     verdict: str
     reason: str
-    seconds: dict = field(default_factory=dict)
+    seconds: dict = field(default_factory=dict)  # compare, rank, add (everything after the ranking), total
+    stages: dict[str, float] = field(default_factory=dict)  # every stage's wall time, s, in order (``StageClock``)
+    halves: list[HalfFits] = field(default_factory=list)  # --auto: the added effects on two halves (``halves``)
     closed_loop: dict | None = None  # robot vs model in closed loop (``transfer.closed_loop_models``)
     data_checks: list[checks.Finding] = field(default_factory=list)  # the measurements' own consistency
     chains: list[Chain] = field(default_factory=list)  # --auto: every chain of added effects tried (``policy.auto``)
@@ -73,6 +77,12 @@ class Diagnosis:
     @property
     def final(self) -> Comparison:
         return self.added[-1].after if self.added else self.before
+
+    @property
+    def model(self) -> Model:
+        """The model the verdict stands for: the final one, or the model as given where the added
+        effects do not hold (unexplained after --auto: the effects only papered over the error)."""
+        return self.before.model if self.verdict == "unexplained" and self.halves else self.final.model
 
     @property
     def structured_share(self) -> float:
@@ -109,14 +119,16 @@ def _swapped(chains: list[Chain], steps: list[Added], new: list[Added]) -> list[
 
 def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None, add: list[str] = (),
              automatic: bool = False, progress=None, check_data: bool = True,
-             accelerometer: Accelerometer | None = None, thresholds: Thresholds = THRESHOLDS) -> Diagnosis:
+             accelerometer: Accelerometer | None = None, thresholds: Thresholds = THRESHOLDS,
+             clock: StageClock | None = None) -> Diagnosis:
     """Run the whole diagnosis (module docstring); ``add``: effects to add in this order;
     ``check_data``: check the measurements' consistency first (off for synthetic ones);
     ``accelerometer``: how to read it (None: as the dataset states, else judged under ``model``
     and, where effects are added, again under the final model: where that judgement differs, the
     diagnosis runs again with it, ``acn.diagnosis.accelerometer``); ``thresholds``: the selection's
-    (``policy``)."""
+    (``policy``); ``clock``: times every stage (``Diagnosis.stages``)."""
     cfg, t = cfg or DiagnoseConfig(), thresholds
+    clock = clock or StageClock()
     for name in add:
         get_effect(name)  # unknown names fail before any work
     say = progress or (lambda msg, fraction=None: None)
@@ -144,7 +156,7 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
     if check_data and (rate := physics_rate(problem, model, judge_rows, residual)):
         findings = findings + [rate]
     where = breakdown(problem, before)
-    t1 = time.perf_counter()
+    t1 = clock.record("compare", t0)
     say("ranking the catalogue")
     ranking = rank(problem, model, cfg, judge_rows, residual, progress=say, t=t)
     model_floor = floor_of(problem, model, judge_rows, residual)
@@ -156,14 +168,15 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
         if finer is not ranking:
             ranking, floor = finer, floor_after(problem, model_floor, judge_rows, residual, finer, t=t)
             floor_mse = float(np.mean(floor))
-    t2 = time.perf_counter()
+    t2 = clock.record("rank", t1)
     added: list[Added] = []
     current, current_residual = before, residual
     for name in add:
         say(f"adding {name}", None)
         ranked = next((c for c in ranking if c.name == name), None) if not added else None
-        step = add_effect(problem, current.model, name, cfg, judge_rows, current_residual, current,
-                          start=ranked.fit if ranked else None, t=t)
+        with clock.stage(f"add {name}"):
+            step = add_effect(problem, current.model, name, cfg, judge_rows, current_residual, current,
+                              start=ranked.fit if ranked else None, t=t)
         if ranked is not None:  # the first effect named: what the first ranking cannot tell it from
             step.ties = ties_of(ranked, ranking, t=t)
         added.append(step)
@@ -171,25 +184,40 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
     chains: list[Chain] = []
     set_aside: dict[str, str] = {}
     if automatic:
-        again = ranking if not added else rank(problem, current.model, cfg, judge_rows, current_residual, say, t=t)
+        with clock.stage(f"rank beside {' + '.join(add)}" if added else "rank"):
+            again = ranking if not added else rank(problem, current.model, cfg, judge_rows, current_residual, say, t=t)
         steps, chains, set_aside = auto(problem, current, cfg, judge_rows, current_residual, floor_mse, again, say,
-                                        t=t)
+                                        t=t, clock=clock)
         added += steps
-    if any(traits(a.name).moves_start for a in added):
-        say("refining the fits of effects that move the start state", None)
-        added = _swapped(chains, added, refine_chain(problem, before, added, cfg, judge_rows, residual, t=t))
-    added = _swapped(chains, added, fit_over_steps(problem, added, cfg, judge_rows, residual, say, t=t))
+    with clock.stage("final refit"):
+        if any(traits(a.name).moves_start for a in added):
+            say("refining the fits of effects that move the start state", None)
+            added = _swapped(chains, added, refine_chain(problem, before, added, cfg, judge_rows, residual, t=t))
+        added = _swapped(chains, added, fit_over_steps(problem, added, cfg, judge_rows, residual, say, t=t))
     if given is None and accelerometer.by_model and added:  # the integration's judgement needs no model
         again = replace(read_accelerometer(problem, added[-1].after.model, judge_rows), again=True)
         if again.kind != accelerometer.kind:
             how = "at each instant" if again.kind == "instant" else "as the mean over the control step"
             say(f"with the effects added the accelerometer reads {how}: diagnosing again", None)
-            return diagnose(data, model, cfg, add, automatic, progress, check_data, accelerometer=again, thresholds=t)
+            return diagnose(data, model, cfg, add, automatic, progress, check_data, accelerometer=again, thresholds=t,
+                            clock=clock)
     t3 = time.perf_counter()
     v, reason, named = verdict(before, mse, floor_mse, ranking, added, automatic, set_aside, t=t)
+    half_fits: list[HalfFits] = []
+    if automatic and v == "effect" and added:
+        say("fitting the added effects on two halves of the episodes", None)
+        with clock.stage("halves"):
+            half_fits = fit_halves(problem, added[-1].after.model, names(added), cfg)
+        t3 = time.perf_counter()
+        if why := does_not_hold(half_fits, t=t):
+            v, named = "unexplained", ()
+            reason = (f"{structured_share(mse, floor_mse):.0%} of the error is structured (above the noise floor); "
+                      f"{' + '.join(names(added))} would explain it, but not alike on two halves of the episodes: "
+                      f"{why}")
     reason += findings_note(findings, named)
     return Diagnosis(data.description, problem, before, judge_rows, floor, mse, where, ranking, added, v, reason,
                      seconds={"compare": t1 - t0, "rank": t2 - t1, "add": t3 - t2, "total": t3 - t0},
+                     stages=dict(clock.seconds), halves=half_fits,
                      data_checks=findings, chains=chains, set_aside=set_aside, accelerometer=accelerometer,
                      thresholds=t)
 
@@ -277,7 +305,7 @@ class Stages:
 
 
 def run(data: Measurements, model: Model, cfg: DiagnoseConfig, stages: Stages = Stages(), progress=None,
-        thresholds: Thresholds = THRESHOLDS) -> Diagnosis:
+        thresholds: Thresholds = THRESHOLDS, clock: StageClock | None = None) -> Diagnosis:
     """Every stage of ``acn-diagnose``: the diagnosis (``diagnose``; or, with
     ``stages.explain_corrector``, ``explain_corrector``), then what the log rules out
     (``rule_out``) and the closed loop where ``stages`` asks for them; the result carries them.
@@ -288,7 +316,7 @@ def run(data: Measurements, model: Model, cfg: DiagnoseConfig, stages: Stages = 
         result = explain_corrector(data, model, stages.explain_corrector, cfg, progress=say, thresholds=thresholds)
     else:
         result = diagnose(data, model, cfg, add=list(stages.add), automatic=stages.automatic, progress=say,
-                          thresholds=thresholds)
+                          thresholds=thresholds, clock=clock)
     if stages.limits or stages.limits_per_joint:
         result.limits = rule_out(result, cfg.candidates, one_joint=stages.limits_per_joint, progress=say)
     if stages.closed_loop is not None:

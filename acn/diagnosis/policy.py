@@ -84,11 +84,14 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from acn.diagnosis import heldout
+from acn.diagnosis.clock import StageClock, untimed
 from acn.diagnosis.compare import Comparison, compare, floor_of
-from acn.diagnosis.fitting import EffectFit, final_fit, final_rows, fit_effect, multistep_refit, rank_rows, refittable
+from acn.diagnosis.fitting import (EffectFit, FreeParameters, final_fit, final_rows, finer_gains, fit_effect,
+                                   multistep_refit, rank_rows, refittable, screen_rows)
 from acn.diagnosis.granularity import GRANULARITIES, finer
+from acn.diagnosis.halves import HalfFits, chi2_quantile
 from acn.diagnosis.heldout import (Judgement, LongestHorizon, explained_share, longest_removed, paired_z,
-                                   structured_share)
+                                   removed_at, structured_share)
 from acn.diagnosis.problem import DiagnoseConfig, Problem
 from acn.diagnosis.results import Added, Candidate, Chain, held, longer_gain, names
 from acn.diagnosis.traits import traits
@@ -126,6 +129,11 @@ class Thresholds:
     # long prediction forgets
     longer_margin: float = 0.05       # of that error a candidate must remove more to overrule the one step:
     # reordering on a difference within the noise
+    # the ranking's screen on fewer rows (``rank``)
+    screen_keep: int = 4              # best candidates by score fitted again on all rows: more than every later
+    # stage looks at (``screened`` at the longest horizon, ``floor_candidates``, the first other start) ...
+    screen_removed: float = 0.01      # ... of those, the ones removing this share of the error on the screen:
+    # half of ``min_improvement``, as a fit on fewer rows removes less held out than one on more
     # look-alike candidates
     parsimony_z: float = 2.0          # paired z a richer candidate must beat a simpler one by: a richer effect
     # winning by fitting the contact bias sensor noise leaves
@@ -133,12 +141,22 @@ class Thresholds:
     # richer effect ranked first for a gain the simpler one nearly matches
     finer: tuple[str, ...] = ("type", "leg", "joint")  # granularities the finer look fits: one weak motor
     # cancelling in a value shared by every joint
+    finer_screen: float = 0.01        # of the fit rows' error one Gauss-Newton step at a finer granularity must
+    # promise before that granularity is fitted (``fitting.finer_gains``): half of ``min_improvement``, as the
+    # in-sample linear promise of a finer fit that holds out overstates what it removes held out
     # adding (--auto)
     auto_min_explained: float = 0.05  # of the structured error left: adding what noise-fitting effects manage
     auto_min_removed: float = 0.05    # of the one-step error: the same, measured on the whole error ...
     auto_min_longer: float = 0.05     # ... unless it lowers the longest-horizon error this much: missing a second,
     # smaller effect that sensor noise hides at one step
     shortlist: int = 5                # candidates an alternative chain re-ranks: re-ranking the catalogue per chain
+    auto_min_share: float = 0.05      # of the structured error of the model --auto starts from, an added effect
+    # explains held out (or of its longest-horizon open-loop error, removes): 2.5 x ``min_improvement``, what
+    # fitting noise removes, so that an effect fitted to the last per cent a first effect leaves is not added
+    halves_z: float = 3.09            # normal quantile of the chi^2 test that an added effect's fits on two halves of
+    # the episodes agree (0.999): effects that paper over structure the catalogue lacks named as the answer
+    nominal_z: float = 2.0            # standard errors within which every fitted value lies at nominal: the data
+    # cannot tell the effect from its absence
     # the verdict
     exact: float = 1e-3               # headline error under which a model reproduces the data: naming float32
     # storage's rounding (~1e-6)
@@ -344,21 +362,40 @@ def floor_after(problem: Problem, model_floor: np.ndarray, judge_rows: np.ndarra
 # ----- ranking ------------------------------------------------------------------------------
 def rank(problem: Problem, model: Model, cfg: DiagnoseConfig, judge_rows: np.ndarray, base_residual: np.ndarray,
          progress=None, t: Thresholds = THRESHOLDS) -> list[Candidate]:
-    """Every candidate effect fitted on fit rows and judged on ``judge_rows``; best first."""
-    fit_rows = rank_rows(problem, cfg)
-    out = []
+    """Every candidate effect fitted on fit rows and judged on ``judge_rows``; best first.
+
+    Each is fitted first on ``screen_rows`` (``cfg.screen_rows`` of the ranking's rows), the
+    effects in the model held at their values, and judged on every judge row; the best of them
+    (``promising``) are fitted again on all ``rank_rows`` from those values, without the scan for
+    a start, with the few-parameter effects of the model refitted beside them (``refittable``).
+    The others keep their screening fit, judged on the same held-out rows as the rest."""
+    rows, few = rank_rows(problem, cfg), screen_rows(problem, cfg)
+    screened = []
     for i, name in enumerate(cfg.candidates):
         if progress:
             progress(f"fitting {name}", i / len(cfg.candidates))
-        effect = get_effect(name)
-        fit = fit_effect(problem, model, effect, traits(name).granularity, fit_rows, max_iter=cfg.rank_iterations,
-                         refit=refittable(model))
-        c = candidate(problem, fit, judge_rows, base_residual, t=t)
+        fit = fit_effect(problem, model, get_effect(name), traits(name).granularity, few,
+                         max_iter=cfg.rank_iterations)
+        screened.append(candidate(problem, fit, judge_rows, base_residual, t=t))
+    out, again = [], {id(c) for c in promising(screened, t=t)} if len(few) < len(rows) else set()
+    for c in screened:
+        if id(c) in again:
+            fit = fit_effect(problem, model, c.fit.effect, c.fit.granularity, rows, start=c.fit.values,
+                             max_iter=cfg.rank_iterations, refit=refittable(model), scan=False)
+            c = candidate(problem, fit, judge_rows, base_residual, t=t)
+        name, fit = c.name, c.fit
         if traits(name).fit_over_steps and c.judgement.significant and implausible(fit, t=t) not in ("", TOO_SMALL):
-            ahead = over_steps_from_realistic(problem, model, fit, fit_rows, t=t)
+            ahead = over_steps_from_realistic(problem, model, fit, rows, t=t)
             c = c if ahead is fit else candidate(problem, ahead, judge_rows, base_residual, t=t)
         out.append(c)
     return order(problem, model, cfg, out, progress, t=t)
+
+
+def promising(screened: list[Candidate], t: Thresholds = THRESHOLDS) -> list[Candidate]:
+    """The candidates of a screening (``rank``) fitted again on all the ranking's rows: of the
+    ``screen_keep`` best by score, those that remove ``screen_removed`` of the error."""
+    return [c for c in sorted(screened, key=lambda c: -c.score)[:t.screen_keep]
+            if c.judgement.removed >= t.screen_removed]
 
 
 def over_steps_from_realistic(problem: Problem, model: Model, fit: EffectFit, rows: np.ndarray,
@@ -649,13 +686,18 @@ def finer_look(problem: Problem, model: Model, cfg: DiagnoseConfig, judge_rows: 
     after them). No granularity finer than ``cfg.finest`` is fitted (``--finest``)."""
     shared = [c for c in ranking if c.fit.granularity == "shared" and (only is None or c.name in only)
               and any(p.per_joint for p in c.fit.effect.parameters)]
-    rows = rank_rows(problem, cfg)
+    rows, few = rank_rows(problem, cfg), screen_rows(problem, cfg)
     granularities, least_removed = (("joint",), t.structured_share) if floor_says_noise else (t.finer, 0.0)
     granularities = tuple(g for g in granularities if GRANULARITIES.index(g) <= GRANULARITIES.index(cfg.finest))
+    if not granularities:
+        return ranking
     out, changed = list(ranking), False
     for c in shared:
         best = c
+        promise = finer_gains(problem, c.fit, few, granularities)
         for g in granularities:
+            if promise[g] < max(t.finer_screen, least_removed / 2):
+                continue
             if progress:
                 progress(f"fitting {c.name} per {g}", None)
             fit = fit_effect(problem, model, c.fit.effect, g, rows, start=c.fit.values, max_iter=cfg.rank_iterations,
@@ -693,12 +735,18 @@ def choose_fit(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, j
     effect = get_effect(name)
     rows = rank_rows(problem, cfg)
     chosen: list[tuple[EffectFit, Judgement]] = []  # each granularity that beat the one before it
-    for g in _granularities(effect, cfg.finest):
+    granularities = _granularities(effect, cfg.finest)
+    promise: dict[str, float] = {}  # the finer granularities' screen from the coarsest fit (``finer_gains``)
+    for g in granularities:
         best = chosen[-1] if chosen else None
         # neither joint types nor legs differ, and the ranking did not fit joints apart: no reason to try 12 values
         if best is not None and g == "joint" and best[0].granularity == "shared" and not (
                 start is not None and start.granularity == "joint"):
             break
+        if best is not None and not (start is not None and start.granularity == g):
+            promise = promise or finer_gains(problem, chosen[0][0], rows, granularities[1:])
+            if promise[g] < t.finer_screen:
+                continue
         seed = start.values if start is not None and start.granularity == g else (best[0].values if best else None)
         fit = fit_effect(problem, model, effect, g, rows, start=seed, refit=refittable(model))
         if best is None or judge(problem, fit.model, judge_rows, best[1].residual_after,
@@ -748,6 +796,44 @@ def too_little(j: Judgement, longer: float | None, floor_mse: float, t: Threshol
         tail = f" and {longer:.1%} at the longest horizon" if longer is not None else ""
         return f"removes only {j.removed:.1%} of the one-step error{tail}"
     return ""
+
+
+def unneeded(step: Added, start: Comparison, start_mse: float, floor_mse: float, t: Thresholds = THRESHOLDS) -> str:
+    """Why the data do not need ``step``'s effect ("" where they do): every value it fits lies at
+    nominal within ``nominal_z`` standard errors, or it explains under ``auto_min_share`` of the
+    structured error of the model --auto started from (``start``, whose held-out one-step error is
+    ``start_mse``) and removes under ``auto_min_share`` of that model's open-loop error at the
+    longest horizon.
+
+    ``too_little`` judges a step against what the effects before it left; once one effect has
+    explained a noise-free log to its last per cent, any flexible effect explains a share of
+    that rest (a payload of 0 kg, its centre of mass 5 mm off, beside a joint damping that
+    explained the rest). Against the error the diagnosis started from, such a step is nothing."""
+    f = step.fit
+    own = len(FreeParameters(f.effect, f.granularity, f.values).names)
+    nominal = FreeParameters(f.effect, f.granularity, f.nominal).vector(f.nominal)
+    off = np.abs(f.x[:own] - nominal) / np.maximum(f.stderr[:own], 1e-12)
+    if np.all(off <= t.nominal_z):
+        return f"its fitted values lie at nominal within {t.nominal_z:g} standard errors"
+    share = (step.judgement.mse_before - step.judgement.mse_after) / (start_mse - floor_mse) \
+        if start_mse > floor_mse else 0.0
+    longer = removed_at(start, step.after, start.check) - removed_at(start, step.before, start.check) \
+        if start.check > 1 else 0.0
+    if share < t.auto_min_share and longer < t.auto_min_share:
+        return (f"it explains only {max(share, 0):.1%} of the error above the noise floor the diagnosis started from "
+                f"and removes {max(longer, 0):.1%} of its {start.check}-step open-loop error")
+    return ""
+
+
+def nothing_left(current: Comparison, mse: float, start: Comparison, start_mse: float, floor_mse: float,
+                 t: Thresholds = THRESHOLDS) -> bool:
+    """Whether no effect added beside ``current`` (held-out one-step error ``mse``) can pass
+    ``unneeded`` any more: all of what is left, noise included, is under ``auto_min_share`` of
+    the structured error ``start`` had (one-step error ``start_mse``), and of its open-loop error
+    at the longest horizon. --auto stops there: no ranking, finer look or other start."""
+    one = mse / (start_mse - floor_mse) if start_mse > floor_mse else 0.0
+    longer = 1.0 - removed_at(start, current, start.check) if start.check > 1 else 0.0
+    return one < t.auto_min_share and longer < t.auto_min_share
 
 
 def refine_chain(problem: Problem, before: Comparison, steps: list[Added], cfg: DiagnoseConfig,
@@ -810,8 +896,8 @@ def fit_over_steps(problem: Problem, steps: list[Added], cfg: DiagnoseConfig, ju
 
 # ----- --auto: chains of added effects ------------------------------------------------------
 def auto(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows: np.ndarray, base_residual: np.ndarray,
-         floor_mse: float, ranking: list[Candidate], progress=None,
-         t: Thresholds = THRESHOLDS) -> tuple[list[Added], list[Chain], dict[str, str]]:
+         floor_mse: float, ranking: list[Candidate], progress=None, t: Thresholds = THRESHOLDS,
+         clock: StageClock | None = None) -> tuple[list[Added], list[Chain], dict[str, str]]:
     """``greedy`` then ``revisit``, from the best candidate and (``other_starts``) from the next
     ``cfg.auto_alternatives`` ones; the added effects of the chain kept, every chain tried, and the
     candidates the first chain set aside on their final fit (name -> why).
@@ -819,15 +905,19 @@ def auto(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows: n
     The other starts are tried whatever the chain leaves: once one effect has stood in for two,
     the one-step error can sit at the noise floor (nothing left to rank) while the open-loop
     error is still three times what the right pair leaves (payload + damping below)."""
-    steps, set_aside = greedy(problem, first, cfg, judge_rows, base_residual, floor_mse, ranking, progress, t=t)
-    chain = revisit(problem, first, cfg, judge_rows, base_residual, steps, progress, t=t)
-    return (*other_starts(problem, first, cfg, judge_rows, base_residual, floor_mse, ranking, chain, progress, t=t),
-            set_aside)
+    clock = clock or untimed()
+    steps, set_aside = greedy(problem, first, cfg, judge_rows, base_residual, floor_mse, ranking, progress, t=t,
+                              clock=clock)
+    with clock.stage("revisit"):
+        chain = revisit(problem, first, cfg, judge_rows, base_residual, steps, progress, t=t)
+    with clock.stage("other starts"):
+        return (*other_starts(problem, first, cfg, judge_rows, base_residual, floor_mse, ranking, chain, progress, t=t),
+                set_aside)
 
 
 def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows: np.ndarray,
            base_residual: np.ndarray, floor_mse: float, ranking: list[Candidate],
-           progress=None, t: Thresholds = THRESHOLDS) -> tuple[list[Added], dict[str, str]]:
+           progress=None, t: Thresholds = THRESHOLDS, clock: StageClock | None = None) -> tuple[list[Added], dict[str, str]]:
     """Greedy rank -> add while the best candidate removes more than the noise: it explains at
     least ``auto_min_explained`` of what is left above the floor, and removes ``auto_min_removed``
     of the one-step error or ``auto_min_longer`` of the longest-horizon open-loop error.
@@ -858,6 +948,8 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
     kept_coarse: set[str] = set()  # added; a finer fit of it was not added on its final fit
     looked = False  # the new candidates of this ranking fitted finer (finer_look)
     current, residual = first, base_residual
+    start_mse = float(np.mean(base_residual ** 2))
+    clock = clock or untimed()
     while len(names(added)) < cfg.auto_max and len(added) < 2 * cfg.auto_max:  # (refinements: finite, bounded)
         open_ = [c for c in ranking if c.name not in names(added) or c.name not in kept_coarse  # refinements too
                  and finer(c.fit.granularity, held(current.model, c.name))]
@@ -868,9 +960,11 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
         best = next((c for c in candidates if not too_little(c.judgement, c.longer_gain, floor_mse, t=t)), None)
         if best is None and added and not looked:  # one joint apart (docstring)
             looked = True
-            looked_finer = finer_look(problem, current.model, cfg, judge_rows, residual, ranking, progress=progress,
-                                      floor_says_noise=floor_says_noise(float(np.mean(residual ** 2)), floor_mse, t=t),
-                                      only=[c.name for c in ranking if c.name not in names(added)], t=t)
+            with clock.stage("finer look"):
+                looked_finer = finer_look(
+                    problem, current.model, cfg, judge_rows, residual, ranking, progress=progress,
+                    floor_says_noise=floor_says_noise(float(np.mean(residual ** 2)), floor_mse, t=t),
+                    only=[c.name for c in ranking if c.name not in names(added)], t=t)
             if looked_finer is not ranking:
                 ranking = looked_finer
                 continue
@@ -878,10 +972,13 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
             break
         if progress:
             progress(f"adding {best.name}", None)
-        step = add_effect(problem, current.model, best.name, cfg, judge_rows, residual, current, start=best.fit, t=t)
+        with clock.stage(f"add {best.name}"):
+            step = add_effect(problem, current.model, best.name, cfg, judge_rows, residual, current, start=best.fit,
+                              t=t)
         step.ties = ties_of(best, open_, t=t)
         little = too_little(step.judgement, longer_gain(step), floor_mse, t=t)
-        why = final_doubt(step, t=t) or (f"its final fit {little}" if little else "")
+        why = final_doubt(step, t=t) or (f"its final fit {little}" if little else "") \
+            or unneeded(step, first, start_mse, floor_mse, t=t)
         if best.name in names(added) and (why or not step.refines
                                           or fits_noise(longer_gain(step), step.fit.effect, t=t)):
             kept_coarse.add(best.name)  # its finer fit did not hold: the effect stays as added
@@ -896,13 +993,16 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
             continue
         added.append(step)
         current, residual = step.after, step.judgement.residual_after
+        if nothing_left(current, step.judgement.mse_after, first, start_mse, floor_mse, t=t):
+            break
         if len(names(added)) < cfg.auto_max:
-            ranking, looked = rank(problem, current.model, cfg, judge_rows, residual, progress, t=t), False
-            coarse = [n for n in names(added) if n not in kept_coarse
-                      and held(current.model, n) == "shared" and cfg.finest != "shared"]
-            if len(added) > 1 and coarse:  # fit them finer beside the effects added after them
-                ranking = finer_look(problem, current.model, cfg, judge_rows, residual, ranking, progress=progress,
-                                     only=coarse, t=t)
+            with clock.stage(f"rank beside {' + '.join(names(added))}"):
+                ranking, looked = rank(problem, current.model, cfg, judge_rows, residual, progress, t=t), False
+                coarse = [n for n in names(added) if n not in kept_coarse
+                          and held(current.model, n) == "shared" and cfg.finest != "shared"]
+                if len(added) > 1 and coarse:  # fit them finer beside the effects added after them
+                    ranking = finer_look(problem, current.model, cfg, judge_rows, residual, ranking,
+                                         progress=progress, only=coarse, t=t)
     return added, set_aside
 
 
@@ -982,7 +1082,10 @@ def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge
                  base_residual: np.ndarray, floor_mse: float, ranking: list[Candidate], chain: list[Added],
                  progress=None, t: Thresholds = THRESHOLDS) -> tuple[list[Added], list[Chain]]:
     """The greedy chain started from each of the next ``cfg.auto_alternatives`` plausible,
-    significant candidates of the first ranking, re-ranking only the ``shortlist`` best of them.
+    significant candidates of the first ranking, re-ranking only the ``shortlist`` best of them,
+    each with one value for every joint (``finest`` shared, so no finer look): another chain asks
+    whether other effects predict better, which their shared values show. None is started where
+    the kept chain leaves nothing another could explain (``nothing_left``).
 
     Adding greedily, one effect can stand in for two: payload 2 kg + joint damping 0.4 came out as
     both PD gains scaled (0.89 / 1.17: a higher derivative gain is damping, a lower proportional
@@ -1011,8 +1114,11 @@ def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge
         return chain, []
     kept = Chain(chain, chain[0].name, kept=True, why="the best candidate first")
     tried = [kept]
+    if nothing_left(chain[-1].after, chain[-1].judgement.mse_after, first, float(np.mean(base_residual ** 2)),
+                    floor_mse, t=t):
+        return kept.steps, tried  # no other chain can explain a share of the error this one leaves
     pool = [c for c in ranking if c.judgement.significant and not doubt(c, t=t)]
-    shortlist = replace(cfg, candidates=tuple(c.name for c in pool[:t.shortlist]))
+    shortlist = replace(cfg, candidates=tuple(c.name for c in pool[:t.shortlist]), finest="shared")
     for c in [c for c in pool if c.name != chain[0].name][:cfg.auto_alternatives]:
         if progress:
             progress(f"trying {c.name} first", None)
@@ -1111,6 +1217,14 @@ def revisit(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows
             progress(f"{' + '.join(names(chain))} predicts worse: kept {' + '.join(effects)}", None)
         return added
     return chain
+
+
+def does_not_hold(fits: list[HalfFits], t: Thresholds = THRESHOLDS) -> str:
+    """Why the added effects do not hold on two halves of the episodes ("" where they do): an
+    effect whose two fits differ beyond their standard errors (chi^2 above its quantile at
+    ``halves_z``, ``acn.diagnosis.halves``)."""
+    off = [f for f in fits if f.chi2 > chi2_quantile(len(f.names), t.halves_z)]
+    return "; ".join(f"{f.worst()} (chi^2 {f.chi2:.0f} on {len(f.names)} values)" for f in off)
 
 
 # ----- the verdict --------------------------------------------------------------------------

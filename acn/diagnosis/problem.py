@@ -58,7 +58,8 @@ class DiagnoseConfig:
     step_seconds: float | None = 0.02  # s of control steps (rounded, >= 1) per diagnosis step; None: one control step
     compare_rows: int = 20_000     # held-out rows re-simulated for the one-step error table
     rollout_starts: int = 200      # held-out starts per longer horizon
-    rank_rows: int = 400           # fit rows used to fit every candidate
+    rank_rows: int = 400           # fit rows used to fit every candidate that promises an effect
+    screen_rows: int = 150         # of those, the rows every candidate is fitted on first (``policy.rank``)
     rank_iterations: int = 3       # optimiser iterations per candidate when ranking (the added one gets more)
     judge_rows: int = 1_500        # held-out rows that judge a candidate
     fit_rows: int = 1_500          # fit rows for an added effect's final fit
@@ -74,7 +75,7 @@ class DiagnoseConfig:
             raise UserError(f"step_seconds must be a positive number of seconds (or None), got {self.step_seconds}")
         if not self.horizons or min(self.horizons) < 1:
             raise UserError("horizons must be whole numbers >= 1")
-        for name in ("compare_rows", "rollout_starts", "rank_rows", "judge_rows", "fit_rows"):
+        for name in ("compare_rows", "rollout_starts", "rank_rows", "screen_rows", "judge_rows", "fit_rows"):
             if getattr(self, name) < 8:
                 raise UserError(f"{name} must be >= 8")
         if self.auto_alternatives < 0:

@@ -42,7 +42,16 @@ JSON keys (the machine-readable contract):
 - ``same_physics_together``: effects of the final model that together are the same physics as one
   catalogue effect not in it while the PD is unsaturated (``EffectTraits.together``: motor strength +
   joint damping as PD gains), each ``effects`` and ``as``; [] if none;
-- ``model`` and ``final_model``: the model files before and after;
+- ``model`` and ``final_model``: the model files before and after; ``named_model``: the one the
+  verdict stands for (``--save-model`` writes it: the final model, or the model as given where
+  the added effects do not hold on two halves of the episodes);
+- ``halves`` (``--auto`` with effects added, else []): each added effect fitted again on two
+  halves of the episodes (``acn.diagnosis.halves``): ``effect``, ``parameters``, ``first``,
+  ``second``, ``stderr_first``, ``stderr_second``, ``chi2``;
+- ``seconds``: ``compare``, ``rank``, ``add`` (every stage after the ranking) and ``total``;
+  ``stages``: every stage's wall time in the order run (``compare``, ``rank``, ``add EFFECT``,
+  ``rank beside EFFECTS``, ``finer look``, ``revisit``, ``other starts``, ``final refit``,
+  ``halves``);
 - ``closed_loop`` (with ``--closed-loop``, else null): the robot re-run beside the model from
   held-out initial states (``transfer``): ``runs`` by name (``uncorrected`` = the model as
   given, or ``as given`` when its file carries a corrector; ``corrected`` = with
@@ -297,7 +306,9 @@ def to_json(d: Diagnosis) -> dict:
         "chains": [c.to_json() for c in d.chains],
         "set_aside_on_final_fit": d.set_aside,
         "model": d.before.model.to_json(), "final_model": d.final.model.to_json(),
-        "seconds": d.seconds,
+        "named_model": d.model.to_json(),
+        "halves": [h.to_json() for h in d.halves],
+        "seconds": d.seconds, "stages": d.stages,
         "closed_loop": d.closed_loop,
         "limits": [x.to_json() for x in d.limits] if d.limits is not None else None,
     }
