@@ -8,7 +8,11 @@ line per case and ``name=value`` totals:
 - ``ranked_first``: cases whose hidden effect is ranked first (of those with an effect);
 - ``within_15pct``: of those, the fitted parameter within 15 % (a per-joint vector: its norm);
 - ``removed_80pct``: of those, the added effect explains >= 80 % of the error above the floor;
-- ``verdict_right``: "none" on nominal logs, "unexplained" outside the catalogue, "effect" else.
+- ``verdict_right``: "none" on nominal logs, "unexplained" outside the catalogue (joint springs,
+  calves 10 % long, thighs half as heavy again: structure a sum of flexible effects would paper
+  over), "effect" else (one worn joint among them: its damping per joint, on that joint).
+
+Each case's line ends with its time and, under it, the time of every stage of the diagnosis.
 
 With ``--other``, the ``OTHER`` cases instead: values and seeds the rules were not made on.
 With ``--no-mocap``, the logs lack the trunk's position and linear velocity (no motion capture:
@@ -73,6 +77,9 @@ With ``--pairs``, logs with TWO hidden effects instead (``--auto``), one line ea
   its value on that joint is compared; a missed one is placed against that joint's own scan
   (``acn-diagnose --limits-per-joint``'s ``by_joint``): ``beyond`` or ``short of`` its grid size
   first shown, or ``between`` (that joint is not bisected; not counted as short of).
+
+With ``--triples``, logs with THREE hidden effects instead (``TRIPLES``, ``--auto``), the same
+line and totals (``triples_all_named``: all three added, and nothing else).
 
 With ``--draws K0:K1``, fresh pairs drawn at random instead (``draw``; seeds ``--seed0`` + k, one
 per draw k): two different effects of ``DRAWN``, each at a value uniform in the catalogue's

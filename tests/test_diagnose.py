@@ -898,6 +898,25 @@ def test_auto_adds_only_what_the_data_need():
     assert nothing_left(left, 0.01 + 0.02, start, 1.0, 0.01) and not nothing_left(left, 0.2, start, 1.0, 0.01)
 
 
+def test_one_jacobian_screens_the_finer_granularities_of_a_fit(tmp_path):
+    """``finer_gains``: from joint damping fitted with one value for every joint, one Jacobian per
+    joint promises the per-joint fit most of the error where one joint alone is damped, and little
+    where every joint is damped alike."""
+    from acn.diagnosis.fitting import finer_gains, fit_effect, rank_rows
+
+    damping = get_effect("joint_damping")
+    promise = {}
+    for case, value in {"one joint": [2.0 if j == 4 else 0.0 for j in range(12)], "every joint": 0.5}.items():
+        data = measured(tmp_path / case.replace(" ", "_"), {"joint_damping": {"value": value}}, seconds=2.0)
+        problem = prepare(data, Model.parse("mujoco"), FAST)
+        rows = rank_rows(problem, FAST)
+        shared = fit_effect(problem, Model.parse("mujoco"), damping, "shared", rows, max_iter=4)
+        promise[case] = finer_gains(problem, shared, rows, ("type", "leg", "joint"))
+    assert promise["one joint"]["joint"] > 0.5 > promise["one joint"]["type"], promise
+    assert promise["one joint"]["type"] <= promise["one joint"]["joint"] and promise["one joint"]["leg"] > 0.01
+    assert max(promise["every joint"].values()) < 0.1, promise  # of the little a shared value leaves
+
+
 def test_effects_whose_fits_on_two_halves_disagree_do_not_hold():
     """``does_not_hold``: two fits of an effect on disjoint halves of the episodes agree within
     their standard errors (chi^2 under its 0.999 quantile) or the explanation does not hold."""

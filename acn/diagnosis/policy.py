@@ -141,6 +141,7 @@ class Thresholds:
     # richer effect ranked first for a gain the simpler one nearly matches
     finer: tuple[str, ...] = ("type", "leg", "joint")  # granularities the finer look fits: one weak motor
     # cancelling in a value shared by every joint
+    finer_keep: int = 3               # finer fits the finer look makes at most, those promising the highest score
     finer_screen: float = 0.01        # of the fit rows' error one Gauss-Newton step at a finer granularity must
     # promise before that granularity is fitted (``fitting.finer_gains``): half of ``min_improvement``, as the
     # in-sample linear promise of a finer fit that holds out overstates what it removes held out
@@ -662,8 +663,9 @@ def needs_finer_look(ranking: list[Candidate], mse: float, floor_mse: float, t: 
 def finer_look(problem: Problem, model: Model, cfg: DiagnoseConfig, judge_rows: np.ndarray,
                base_residual: np.ndarray, ranking: list[Candidate], floor_says_noise: bool = False,
                progress=None, only: Collection[str] | None = None, t: Thresholds = THRESHOLDS) -> list[Candidate]:
-    """``ranking`` with its per-joint candidates fitted again per joint type, per leg and per
-    joint (``finer``), for where no significant, plausible candidate explains most of the error
+    """``ranking`` with its per-joint candidates fitted again per joint type, per leg or per
+    joint (``finer``; at most ``finer_keep`` fits, each at the granularity that promises most:
+    ``promised``), for where no significant, plausible candidate explains most of the error
     above the floor (``pipeline.diagnose``). An effect that differs joint by joint can cancel in
     one shared value: one motor at half strength (FR_calf) was a strength of 0.915 on every
     joint, z 2.4, and the verdict was unexplained. Per leg it is diluted over three joints (0.66
@@ -692,23 +694,38 @@ def finer_look(problem: Problem, model: Model, cfg: DiagnoseConfig, judge_rows: 
     if not granularities:
         return ranking
     out, changed = list(ranking), False
-    for c in shared:
-        best = c
-        promise = finer_gains(problem, c.fit, few, granularities)
-        for g in granularities:
-            if promise[g] < max(t.finer_screen, least_removed / 2):
-                continue
-            if progress:
-                progress(f"fitting {c.name} per {g}", None)
-            fit = fit_effect(problem, model, c.fit.effect, g, rows, start=c.fit.values, max_iter=cfg.rank_iterations,
-                             refit=refittable(model))
-            new = candidate(problem, fit, judge_rows, base_residual, t=t)
-            if (new.judgement.significant and not implausible(fit, t=t) and new.score > best.score
-                    and new.judgement.removed >= least_removed):
-                best = new
-        if best is not c:
-            out[out.index(c)], changed = best, True
+    for c, g in promised(problem, shared, few, granularities, max(t.finer_screen, least_removed / 2), t=t):
+        if progress:
+            progress(f"fitting {c.name} per {g}", None)
+        fit = fit_effect(problem, model, c.fit.effect, g, rows, start=c.fit.values, max_iter=cfg.rank_iterations,
+                         refit=refittable(model))
+        new = candidate(problem, fit, judge_rows, base_residual, t=t)
+        if (new.judgement.significant and not implausible(fit, t=t) and new.score > c.score
+                and new.judgement.removed >= least_removed):
+            out[out.index(c)], changed = new, True
     return order(problem, model, cfg, out, progress, t=t) if changed else ranking
+
+
+def promised(problem: Problem, shared: list[Candidate], rows: np.ndarray, granularities: tuple[str, ...], least: float,
+             t: Thresholds = THRESHOLDS) -> list[tuple[Candidate, str]]:
+    """The finer fits ``finer_look`` makes: for each of the ``shared`` candidates, the granularity
+    whose one-step promise (``fitting.finer_gains`` on ``rows``: the share of its error one
+    Gauss-Newton step removes) is at least ``least`` and whose promised score, its price per
+    parameter included, beats the candidate's by most; of those, the ``finer_keep`` that promise
+    the highest score. The rest are not fitted: under structure no effect describes, every
+    per-joint effect promises something at every granularity (joint springs: 21 fits, a third of
+    that log's diagnosis)."""
+    offers = []
+    for c in shared:
+        promise = finer_gains(problem, c.fit, rows, granularities)
+        scores = {g: c.judgement.removed + promise[g] * (1.0 - c.judgement.removed)
+                  - t.price_per_parameter * len(FreeParameters(c.fit.effect, g, c.fit.values).names)
+                  for g in granularities if promise[g] >= least}
+        if scores and max(scores.values()) > c.score:
+            g = max(scores, key=scores.get)
+            offers.append((scores[g], c, g))
+    offers.sort(key=lambda o: -o[0])
+    return [(c, g) for _, c, g in offers[:t.finer_keep]]
 
 
 # ----- adding an effect ---------------------------------------------------------------------
