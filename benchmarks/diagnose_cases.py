@@ -605,10 +605,15 @@ def main() -> None:
                 tally["removed_80pct"][0] += explained >= 0.8
                 line += (f" {key}={np.round(f.mean(), 4)} (true {np.round(np.mean(true), 4)}, error {err:.1%}) "
                          f"explained={explained:.0%} per={held(d.final.model, effect)}")
+                odd = np.flatnonzero(np.asarray(true) != np.median(true)) if np.ndim(true) else []
+                if len(odd) == 1 and len(f) == len(JOINT_NAMES):  # one joint apart: its own value
+                    line += f" {JOINT_NAMES[odd[0]]}={f[odd[0]]:.4g} (true {np.asarray(true)[odd[0]]:.4g})"
             tally["within_15pct"][1] += 1
             tally["removed_80pct"][1] += 1
         aside = f" set_aside={sorted(d.set_aside)}" if d.set_aside else ""
-        print(line + f" added={[a.name for a in d.added]}{aside} {seconds:.0f}s", flush=True)
+        added = [f"{a.name}({', '.join(f'{k}={float(np.mean(v)):.4g}' for k, v in a.fit.values.items())})"
+                 for a in d.added]
+        print(line + f" added={added}{aside} {seconds:.0f}s", flush=True)
         print(f"  stages: {', '.join(f'{k} {v:.0f}' for k, v in d.stages.items())}", flush=True)
         if d.verdict != want:
             print(f"  {d.verdict}: {d.reason}", flush=True)

@@ -1099,10 +1099,8 @@ def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge
                  base_residual: np.ndarray, floor_mse: float, ranking: list[Candidate], chain: list[Added],
                  progress=None, t: Thresholds = THRESHOLDS) -> tuple[list[Added], list[Chain]]:
     """The greedy chain started from each of the next ``cfg.auto_alternatives`` plausible,
-    significant candidates of the first ranking, re-ranking only the ``shortlist`` best of them,
-    each with one value for every joint (``finest`` shared, so no finer look): another chain asks
-    whether other effects predict better, which their shared values show. Another chain adds at
-    most one effect more than the kept one holds: it stands for two effects that one of the kept
+    significant candidates of the first ranking, re-ranking only the ``shortlist`` best of them.
+    Another chain adds at most one effect more than the kept one holds: it stands for two effects that one of the kept
     chain stood in for, or for the same effects in another order (below); longer, it is a chain
     of flexible effects (on a log with calves 10 % long, up to four effects, the other chain took
     four fifths of the diagnosis's time). None is started where the kept chain leaves nothing
@@ -1139,7 +1137,7 @@ def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge
                     floor_mse, t=t):
         return kept.steps, tried  # no other chain can explain a share of the error this one leaves
     pool = [c for c in ranking if c.judgement.significant and not doubt(c, t=t)]
-    shortlist = replace(cfg, candidates=tuple(c.name for c in pool[:t.shortlist]), finest="shared",
+    shortlist = replace(cfg, candidates=tuple(c.name for c in pool[:t.shortlist]),
                         auto_max=min(cfg.auto_max, len(names(chain)) + 1))
     for c in [c for c in pool if c.name != chain[0].name][:cfg.auto_alternatives]:
         if progress:
