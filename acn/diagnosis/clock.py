@@ -35,7 +35,3 @@ class StageClock:
             self.verbose(f"{name}: {now - start:.1f} s")
         return now
 
-
-def untimed() -> StageClock:
-    """A clock nobody reads (the stages of another chain are timed as one)."""
-    return StageClock()

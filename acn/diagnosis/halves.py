@@ -9,7 +9,7 @@ held-out; episodes alternate between the halves, or with one episode its first a
 of time), from its values, and the two fits are compared parameter by parameter:
 chi^2 = sum (a - b)^2 / (se_a^2 + se_b^2 + resolution^2), with ``resolution`` the optimiser's
 (``RESOLUTION`` of each parameter's typical magnitude: noise-free logs leave standard errors
-smaller than where a fit stops). ``policy.holds`` judges it.
+smaller than where a fit stops). ``policy.does_not_hold`` judges it.
 """
 
 from __future__ import annotations

@@ -84,7 +84,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from acn.diagnosis import heldout
-from acn.diagnosis.clock import StageClock, untimed
+from acn.diagnosis.clock import StageClock
 from acn.diagnosis.compare import Comparison, compare, floor_of
 from acn.diagnosis.fitting import (EffectFit, FreeParameters, final_fit, final_rows, finer_gains, fit_effect,
                                    multistep_refit, rank_rows, refittable, screen_rows)
@@ -922,7 +922,7 @@ def auto(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows: n
     The other starts are tried whatever the chain leaves: once one effect has stood in for two,
     the one-step error can sit at the noise floor (nothing left to rank) while the open-loop
     error is still three times what the right pair leaves (payload + damping below)."""
-    clock = clock or untimed()
+    clock = clock or StageClock()
     steps, set_aside = greedy(problem, first, cfg, judge_rows, base_residual, floor_mse, ranking, progress, t=t,
                               clock=clock)
     with clock.stage("revisit"):
@@ -966,7 +966,7 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
     looked = False  # the new candidates of this ranking fitted finer (finer_look)
     current, residual = first, base_residual
     start_mse = float(np.mean(base_residual ** 2))
-    clock = clock or untimed()
+    clock = clock or StageClock()
     while len(names(added)) < cfg.auto_max and len(added) < 2 * cfg.auto_max:  # (refinements: finite, bounded)
         open_ = [c for c in ranking if c.name not in names(added) or c.name not in kept_coarse  # refinements too
                  and finer(c.fit.granularity, held(current.model, c.name))]
