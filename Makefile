@@ -8,7 +8,7 @@ OUT ?= out
 TEST_WORKERS ?= 2
 export HF_HUB_OFFLINE := 1
 
-.PHONY: demo results test bench install clean
+.PHONY: demo results transfer test bench install clean
 
 # Bytecode: pip would compile every installed module on one core, and compileall over the whole
 # venv took 91 s on 2 cores here (23,500 files, most never imported). Instead, with bytecode
@@ -82,6 +82,16 @@ results: $(STAMP)
 		--json $(RESULTS)/hidden.diagnosis.json --report $(RESULTS)/hidden.report.html \
 		--save-model $(RESULTS)/hidden.model.json
 	@echo "results in $(RESULTS): acn_*/metrics.json (the correctors), *.diagnosis.json and *.report.html"
+
+# The transfer study in its two settings (README, "Which policy walks on the robot"): the paper's
+# (trained in PyBullet, deployed on MuJoCo) and sim-to-real with a hidden effect (trained in nominal
+# MuJoCo, deployed on MuJoCo with a sealed actuator latency and joint damping). Each at the default
+# sizes, at most 90 minutes on 2 cores; the stage times are printed.
+transfer: $(STAMP)
+	@mkdir -p $(OUT)
+	$(BIN)/acn-transfer --sim pybullet --robot mujoco --out $(OUT)/transfer_paper --overwrite
+	$(BIN)/acn-transfer --sim mujoco --robot mujoco --hidden-effect actuator_latency --hidden-effect joint_damping \
+		--out $(OUT)/transfer_hidden --overwrite
 
 test: $(STAMP)
 	$(BIN)/lint-imports

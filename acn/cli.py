@@ -12,6 +12,7 @@ import json
 import os
 import shlex
 import sys
+import time
 from pathlib import Path
 from typing import Callable, Iterator, NoReturn
 
@@ -172,14 +173,18 @@ def _collect_defaults():
     return replace(CollectConfig(), target=None)
 
 
+_MODEL_HELP = ("pybullet, mujoco, a model JSON file (acn-diagnose --save-model) or a robot with hidden effects (its "
+               "OUT.answer.json or its dataset: simulated, never shown)")
+
+
 def _collect_flags() -> dict[str, Flag]:
     """CollectConfig's fields on the command line (``acn-collect``)."""
-    from acn.sim.backends import BACKENDS
     from acn.sim.policies import POLICIES
 
-    return {"source": Flag("simulator the policy acts on", choices=BACKENDS),
-            "target": Flag("second simulator driven with the same actions (omit to record the source alone)",
-                           choices=BACKENDS),
+    return {"source": Flag("robot the policy acts on: " + _MODEL_HELP + "; its effects are written beside the "
+                           "dataset (OUT.answer.json), never into it", metavar="MODEL"),
+            "target": Flag("second robot driven with the same actions (omit to record the source alone): "
+                           + _MODEL_HELP, metavar="MODEL"),
             "policy": Flag("built-in policy", choices=list(POLICIES)),
             "episodes": Flag("episodes to record", positive_int),
             "seconds": Flag("episode length limit, s", seconds),
@@ -219,37 +224,27 @@ def collect_config_from_args(args: argparse.Namespace):
     from acn.sim.backends import SimConfig
     from acn.sim.backends.base import physics_hz_for
 
+    from acn.sim.hidden import draw_hidden, load_model
+
     physics_hz = physics_hz_for(args.control_hz, args.physics_hz)
-    if args.corrector is not None and args.target is not None:
+    source = load_model(args.source)
+    target = load_model(args.target) if args.target is not None else None
+    for model, flag in ((source, "--source"), (target, "--target")):
+        if model is not None and model.corrector:
+            raise UserError(f"{flag} carries a corrector ({model.corrector}); give --corrector for the target instead")
+    if args.corrector is not None and target is not None:
         from acn.corrector.card import TargetDescription
         from acn.corrector.corrector import load_for_target
 
-        # the collected target is the simulator as is
-        load_for_target(args.corrector, TargetDescription(args.target, args.action_mode, args.control_hz))
+        load_for_target(args.corrector, TargetDescription(target.backend, args.action_mode, args.control_hz,
+                                                          effects=tuple(e.to_json() for e in target.effects)))
     sim = config_from_args(args, SimConfig(), _sim_flags(), physics_dt=1.0 / physics_hz,
                            substeps=physics_hz // args.control_hz)
-    return config_from_args(args, _collect_defaults(), _collect_flags(), sim=sim,
+    return config_from_args(args, _collect_defaults(), _collect_flags(), sim=sim, source=source.backend,
+                            target=target.backend if target is not None else None,
                             corrector=str(args.corrector) if args.corrector else None,
-                            hidden_effects=_hidden_effects(args.hidden_effect, args.seed, sim))
-
-
-def _hidden_effects(specs: list[str], seed: int, sim) -> list:
-    """``--hidden-effect`` arguments -> effects with values, drawn from ``seed``; no name twice."""
-    import numpy as np
-
-    from acn.sim.hidden import parse_hidden
-
-    rng = np.random.default_rng([seed, 0x41])
-    out: list = []
-    for spec in specs:
-        for _ in range(100):
-            effect = parse_hidden(spec, rng, sim)
-            if effect.name not in {e.name for e in out}:
-                break
-            if spec != "random":
-                raise UserError(f"--hidden-effect {effect.name} is given twice")
-        out.append(effect)
-    return out
+                            hidden_effects=draw_hidden(args.hidden_effect, args.seed, sim, source.effects),
+                            target_effects=list(target.effects) if target is not None else [])
 
 
 def collect_main(argv: list[str] | None = None) -> int:
@@ -293,7 +288,7 @@ def collect_main(argv: list[str] | None = None) -> int:
         if cfg.hidden_effects:
             from acn.sim.hidden import answer_path
 
-            print(f"hidden effect(s) applied to the {cfg.source} robot; the answer is in {answer_path(path)}")
+            print(f"the {cfg.source} robot's effects (hidden) are in {answer_path(path)}")
         print(f"open it: LeRobotDataset('acn/{path.name}', root='{path}')  (set HF_HUB_OFFLINE=1)")
         return 0
 
@@ -361,9 +356,10 @@ def fit_parser() -> argparse.ArgumentParser:
     p.add_argument("datasets", nargs="+", type=Path, help="paired dataset directories")
     p.add_argument("--out", required=True, type=_out_path, help="model directory to create")
     p.add_argument("--overwrite", action="store_true", help="replace --out if it is a corrector this toolkit wrote (nothing else is ever replaced)")
-    p.add_argument("--model", default=None, metavar="MODEL.json",
-                   help="fit on top of this model of the target simulator (e.g. acn-diagnose --save-model's): its "
-                   "effects are written into the target, and the network learns what they leave (inverse only)")
+    p.add_argument("--model", default=None, metavar="MODEL",
+                   help="fit on top of this model of the target simulator (e.g. acn-diagnose --save-model's, or a "
+                   "robot with hidden effects: its answer file or dataset, never shown): its effects are written "
+                   "into the target, and the network learns what they leave (inverse only)")
     add_flags(p, d, _fit_flags())
     _add_ray_arguments(p, "the re-simulation batches (Jacobians, labels; rows in chunks)")
     return p
@@ -384,9 +380,9 @@ def fit_main(argv: list[str] | None = None) -> int:
         cfg = config_from_args(args, FitConfig(), _fit_flags())
         target = None
         if args.model is not None:
-            from acn.sim.effects import Model
+            from acn.sim.hidden import load_model
 
-            target = Model.parse(args.model)
+            target = load_model(args.model)
         with _ray_executor(args, "acn-fit"):
             model, metrics = fit(args.datasets, cfg, log=lambda line: print(line, file=sys.stderr), target=target)
         path = save(model, metrics, args.out, overwrite=args.overwrite)
@@ -439,14 +435,18 @@ def _ppo_flags() -> dict[str, Flag]:
 
     return {
         # run
-        "timesteps": Flag("train for this many PyBullet control steps in all; fewer than one rollout (n_steps x envs, "
+        "timesteps": Flag("train for this many control steps in all; fewer than one rollout (n_steps x envs, "
                           "2048 by default) is a quick trial: those steps, a 2-epoch refit on two 2 s paired episodes "
                           "and a final evaluation of 2 episodes of 2 s (options you set are kept)", positive_int),
         "seed": Flag("PPO, environments and evaluation starts", nonneg_int),
-        "n_envs": Flag("PyBullet environment processes", positive_int, option="--envs"),
+        "n_envs": Flag("training environment processes", positive_int, option="--envs"),
         "torch_threads": Flag("torch threads of PPO's own process (the simulators run in the others)", positive_int),
         "checkpoint_every": Flag("timesteps between resumable checkpoints", positive_int),
         # task
+        "train": Flag("the model the policy is trained in: " + _MODEL_HELP + " (--eval: the policy's own unless "
+                      "given)", _model_spec, metavar="MODEL"),
+        "robot": Flag("where the policy is deployed and the corrector applied: " + _MODEL_HELP, _model_spec,
+                      metavar="MODEL"),
         "seconds": Flag("episode time limit, s (--eval: default the policy's own)", seconds),
         "base_policy": Flag("built-in gait the policy is a residual on", choices=list(POLICIES)),
         "residual_scale": Flag("rad of joint target per unit of the policy's action", positive_float),
@@ -495,11 +495,12 @@ def ppo_parser() -> argparse.ArgumentParser:
     from acn.rl.ppo import PPOConfig
 
     d = PPOConfig()
-    p = _Parser(prog="acn-ppo", description="Train a walking policy with PPO in PyBullet (a residual on the trot) "
-                "and evaluate it in MuJoCo with and without the frozen corrector pi_corr(s) = pi(s) + F(s, pi(s)), "
-                "which is applied in the TARGET (MuJoCo) only; every --refit-every episodes F is refitted on paired "
-                "data of the current policy (the paper's Algorithm 2). Or, with --eval, reload and evaluate.")
-    mode = p.add_mutually_exclusive_group(required=True)
+    p = _Parser(prog="acn-ppo", description="Train a walking policy with PPO in --train (PyBullet by default; a "
+                "residual on the trot) and evaluate it on --robot (MuJoCo by default) with and without the frozen "
+                "corrector pi_corr(s) = pi(s) + F(s, pi(s)), which is applied on the robot (the TARGET) only; every "
+                "--refit-every episodes F is refitted on paired data of the current policy (the paper's Algorithm 2; "
+                "--refit-every 0 without --corrector: plain PPO). Or, with --eval, reload and evaluate on --robot.")
+    mode = p.add_mutually_exclusive_group()
     flags = _ppo_flags()
     add_flags(mode, d, {"timesteps": flags.pop("timesteps")})  # training, or --eval
     mode.add_argument("--eval", type=Path, metavar="POLICY", help="evaluate a saved policy directory (DIR/policy)")
@@ -524,9 +525,9 @@ def ppo_main(argv: list[str] | None = None) -> int:
         from acn.rl.ppo import PPO_RUN, PPOConfig, Trainer, format_table
 
         if args.out is None:
-            raise UserError("--timesteps needs --out DIR")
+            raise UserError("training needs --out DIR (or give --eval POLICY)")
         if not args.resume:
-            check_output(args.out, PPO_RUN, overwrite=args.overwrite, inputs=[args.corrector])
+            check_output(args.out, PPO_RUN, overwrite=args.overwrite, inputs=[args.corrector, args.train, args.robot])
         elif args.overwrite:
             raise UserError("--resume continues the run in --out; --overwrite would replace it: give one")
         check_input_dir(args.corrector, "corrector directory")
@@ -542,21 +543,32 @@ def ppo_main(argv: list[str] | None = None) -> int:
         print(f"trained {t['timesteps']} steps ({t['episodes']} episodes) in {t['wall_seconds_this_session']:.0f} s; "
               + (f"mean training return of the last 100 episodes {recent:.1f}" if recent is not None
                  else "no training episode finished"))
-        print(f"corrector frozen (tensor sha256 unchanged while in use): {m['corrector_frozen']}")
+        if m["corrector_frozen"] is not None:
+            print(f"corrector frozen (tensor sha256 unchanged while in use): {m['corrector_frozen']}")
         out = args.out.absolute()
         corrector = out / "corrector" if (out / "corrector").is_dir() else None
         print(f"wrote {out / 'policy'} (safetensors + JSON), {f'{corrector}, ' if corrector else ''}"
               f"{out / 'metrics.json'}, {out / 'curves.png'}; {out / 'checkpoint'} resumes training (--resume)")
-        print(f"evaluate again: acn-ppo --eval {out / 'policy'}" + (f" --corrector {corrector}" if corrector else ""))
+        print(f"evaluate again: acn-ppo --eval {out / 'policy'} --robot {shlex.quote(trainer.cfg.robot)}"
+              + (f" --corrector {corrector}" if corrector else ""))
         return 0
 
     return _run("acn-ppo", body)
 
 
+def _model_spec(text: str) -> str:
+    """A model on the command line, kept as given: a backend name, or a file or directory as an
+    absolute path (a run records it and resumes from another directory)."""
+    from acn.sim.backends import BACKENDS
+
+    return text if text in BACKENDS else os.path.abspath(text)
+
+
 def _ppo_eval(args: argparse.Namespace) -> int:
-    settings = given(args, ppo_parser()) - {"eval", "corrector", "episodes", "seconds", "seed", "oracle_episodes", "out"}
+    allowed = ("eval", "robot", "train", "corrector", "episodes", "seconds", "seed", "oracle_episodes", "out")
+    settings = given(args, ppo_parser()) - set(allowed)
     if settings:
-        raise UserError(f"--eval takes --corrector, --episodes, --seconds, --seed, --oracle-episodes and --out only, "
+        raise UserError(f"--eval takes {', '.join('--' + a.replace('_', '-') for a in allowed[1:])} only, "
                         f"not --{sorted(settings)[0].replace('_', '-')}")
     chosen = given(args, ppo_parser())
     limit = args.seconds if "seconds" in chosen else None
@@ -566,7 +578,8 @@ def _ppo_eval(args: argparse.Namespace) -> int:
     from acn.rl.ppo import EVAL_FORMAT, PPO_EVAL, evaluate_saved, format_table, write_json
 
     check_output(args.out, PPO_EVAL, inputs=[args.eval, args.corrector])
-    ev = evaluate_saved(args.eval, args.corrector, args.episodes, limit, args.seed, oracle_episodes)
+    ev = evaluate_saved(args.eval, args.corrector, args.episodes, limit, args.seed, oracle_episodes, robot=args.robot,
+                        sim=args.train if "train" in chosen else None)
     print(format_table(ev))
     if args.out is not None:
         write_json(args.out, {"format": EVAL_FORMAT, **ev})
@@ -776,8 +789,9 @@ def diagnose_parser() -> argparse.ArgumentParser:
 
     p = _Parser(prog="acn-diagnose", description="Compare a model with measurements, show where it fails, rank "
                 "which physical effect is missing, add it and watch the error fall.")
-    p.add_argument("measured", nargs="?", type=Path, help="measurement dataset (acn-import or acn-collect)")
-    p.add_argument("--model", default="mujoco", help="mujoco, pybullet or a model JSON file (default: mujoco)")
+    p.add_argument("measured", nargs="*", type=Path,
+                   help="measurement dataset(s) of one robot (acn-import or acn-collect), diagnosed together")
+    p.add_argument("--model", default="mujoco", help=_MODEL_HELP + " (default: mujoco)")
     p.add_argument("--side", default="source", choices=("source", "target"), help="which side of a paired dataset")
     p.add_argument("--add", action="append", default=[], metavar="EFFECT", help="fit and add this effect (repeatable)")
     p.add_argument("--auto", action="store_true", help="repeat rank -> add while the error falls by more than the noise")
@@ -811,7 +825,7 @@ def _check_diagnose_outputs(args: argparse.Namespace) -> None:
     from acn.sim.backends import BACKENDS
     from acn.sim.effects.model import MODEL_FILE
 
-    inputs = [args.measured, args.corrector, args.explain_corrector]
+    inputs = [*args.measured, args.corrector, args.explain_corrector]
     if args.model not in BACKENDS:
         inputs.append(args.model)
     named: dict[Path, str] = {}
@@ -834,18 +848,19 @@ def diagnose_main(argv: list[str] | None = None) -> int:
         if args.list_effects:
             print(describe_catalogue())
             return 0
-        if args.measured is None:
+        if not args.measured:
             raise UserError("give the measurement dataset (or --list-effects)")
-        from acn.measurements.data import load_measurements
+        from acn.measurements.data import load_measurement_sets
         from acn.diagnosis import ClosedLoop, DiagnoseConfig, Stages, run
         from acn.diagnosis.clock import StageClock
         from acn.diagnosis.report import terminal, write_html, write_json
-        from acn.sim.effects import Model
+        from acn.sim.hidden import load_model
 
         cfg = config_from_args(args, DiagnoseConfig(), _diagnose_flags())
         for name in (*cfg.candidates, *args.add):
             get_effect(name)
-        check_input_dir(args.measured, "measurement dataset")
+        for measured in args.measured:
+            check_input_dir(measured, "measurement dataset")
         _check_diagnose_outputs(args)
         if args.corrector is not None and not args.closed_loop:
             raise UserError("--corrector is run in closed loop: give --closed-loop N as well")
@@ -856,13 +871,15 @@ def diagnose_main(argv: list[str] | None = None) -> int:
             raise UserError("--closed-loop and --explain-corrector are separate questions: ask one at a time")
         for corrector in (args.corrector, args.explain_corrector):
             check_input_dir(corrector, "corrector directory")
-        model = Model.parse(args.model)
+        model = load_model(args.model)
         cfg.validate()
-        closed_loop = ClosedLoop(args.measured, args.side, args.closed_loop, args.closed_loop_seconds, args.corrector,
+        if args.closed_loop and len(args.measured) > 1:
+            raise UserError("--closed-loop re-runs one measured robot's collection: give one dataset")
+        closed_loop = ClosedLoop(args.measured[0], args.side, args.closed_loop, args.closed_loop_seconds, args.corrector,
                                  oracles=not args.no_oracles) if args.closed_loop else None
         stages = Stages(add=tuple(args.add), automatic=args.auto, explain_corrector=args.explain_corrector,
                         limits=limits, limits_per_joint=args.limits_per_joint, closed_loop=closed_loop)
-        data = load_measurements(args.measured, side=args.side)
+        data = load_measurement_sets(args.measured, side=args.side)
         stages.check(data, model)  # refuse what cannot run before the diagnosis, not after
         from tqdm import tqdm
 
@@ -889,6 +906,92 @@ def diagnose_main(argv: list[str] | None = None) -> int:
         return 0
 
     return _run("acn-diagnose", body)
+
+
+# ----------------------------------------------------------------------------- acn-transfer
+def _transfer_flags() -> dict[str, Flag]:
+    """TransferConfig's fields on the command line (``acn-transfer``)."""
+    return {
+        "robot": Flag("where the policies must walk: " + _MODEL_HELP, _model_spec, metavar="MODEL"),
+        "sim": Flag("where a policy is trained without measurements: pybullet, mujoco or a model JSON file",
+                    _model_spec, metavar="MODEL"),
+        "hidden_effects": Flag("make the robot: --robot mujoco with this effect, sealed in OUT/robot.answer.json and "
+                               "never printed (acn-collect's syntax: NAME, NAME:param=value,... or random); repeat for "
+                               "several", _hidden_spec, option="--hidden-effect", metavar="EFFECT"),
+        "timesteps": Flag("PPO control steps per policy (pi_sim, pi_M, pi_robot alike)", positive_int),
+        "episodes": Flag("evaluation episodes per policy, the same held-out starts for all", positive_int),
+        "seconds": Flag("episode length of training and evaluation, s", seconds),
+        "measure_episodes": Flag("measured episodes per motion (the excitation, the trot)", positive_int),
+        "measure_seconds": Flag("their length, s", seconds),
+        "envs": Flag("PPO environment processes per training", positive_int),
+        "seed": Flag("measurements, PPO and the evaluation starts", nonneg_int),
+        "effects": Flag("the diagnosis' candidate effects (default: the whole catalogue)", comma_list(str),
+                        metavar="EFFECT,..."),
+        "finest": Flag("acn-diagnose --finest: the finest granularity of an added per-joint effect (shared: a third "
+                       "of the time of the full search; joint: the full search)", metavar="GRANULARITY"),
+        "auto_alternatives": Flag("acn-diagnose --auto-alternatives: other chains of effects to try", nonneg_int),
+        "fit_epochs": Flag("acn-fit --epochs for the correctors (0: acn-fit's default)", nonneg_int),
+        "fit_rounds": Flag("acn-fit --rounds for the correctors (-1: acn-fit's default)", _rounds),
+    }
+
+
+def _hidden_spec(text: str) -> tuple[str, ...]:
+    return (text,)
+
+
+def _rounds(text: str) -> int:
+    value = int(text) if text.lstrip("-").isdigit() else None
+    if value is None or value < -1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= -1, got {text!r:.40}")
+    return value
+
+
+def transfer_parser() -> argparse.ArgumentParser:
+    from acn.transfer import TransferConfig
+
+    p = _Parser(prog="acn-transfer", description="Train where, correct how, and how well does the policy then walk on "
+                "the robot? Measures the robot (acn-collect), identifies its physics (acn-diagnose --auto: model M), "
+                "fits the corrector F (acn-fit), trains pi_sim in --sim, pi_M in M and pi_robot on the robot "
+                "(acn-ppo), and evaluates pi_sim, pi_sim + F, pi_M, pi_M + F_M and pi_robot on the robot from the "
+                "same held-out starts: the paper's Table 1 layout, the share of the gap each route closes, a "
+                "verdict, OUT/transfer.json and OUT/transfer.png.")
+    p.add_argument("--out", required=True, type=_out_path, help="study directory to create")
+    p.add_argument("--overwrite", action="store_true",
+                   help="remove --out first if it is a study this toolkit wrote (nothing else is ever removed)")
+    flags = _transfer_flags()
+    hidden = flags.pop("hidden_effects")
+    add_flags(p, TransferConfig(), flags)
+    p.add_argument(hidden.option, action="append", default=[], metavar=hidden.metavar, help=hidden.help)
+    _add_ray_arguments(p, "the independent trainings (pi_sim, pi_M, pi_robot and F_M) as Ray tasks")
+    return p
+
+
+def transfer_main(argv: list[str] | None = None) -> int:
+    args = transfer_parser().parse_args(argv)
+
+    def body() -> int:
+        from acn.transfer import TransferConfig, run_study
+        from acn.transfer.study import TRANSFER_STUDY, remove_partial
+
+        cfg = config_from_args(args, TransferConfig(), _transfer_flags(), hidden_effects=tuple(args.hidden_effect))
+        check_output(args.out, TRANSFER_STUDY, overwrite=args.overwrite, inputs=[args.robot, args.sim])
+        cfg.validate()
+        ray = _ray_config(args)
+        remove_partial(args.out)
+        t0 = time.perf_counter()
+        result = run_study(cfg, args.out, ray=ray)
+        out = args.out.absolute()
+        print()
+        print(result["table_text"])
+        print()
+        print(result["table"]["verdict"])
+        print(f"M, the physics the diagnosis identified: {result['model']['described']}")
+        print("stages: " + ", ".join(f"{k} {v / 60:.1f} min" for k, v in result["stages_seconds"].items())
+              + f"; total {(time.perf_counter() - t0) / 60:.1f} min")
+        print(f"wrote {out / 'transfer.json'}, {out / 'transfer.png'}; every command's output is in {out / 'logs'}")
+        return 0
+
+    return _run("acn-transfer", body)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -946,3 +946,22 @@ def test_the_diagnosis_traits_name_effects_of_the_catalogue():
 
     assert set(TRAITS) <= set(EFFECT_NAMES), set(TRAITS) - set(EFFECT_NAMES)
     assert all(t.granularity in GRANULARITIES for t in TRAITS.values())
+
+
+def test_several_datasets_of_one_robot_are_diagnosed_together(tmp_path):
+    """Two motions of one robot: one set of measurements, each dataset's episodes kept apart; other
+    control settings are refused."""
+    from acn.measurements.data import load_measurement_sets
+    from acn.sim.backends import SimConfig
+
+    paths = [record(CollectConfig(source="mujoco", target=None, policy=p, episodes=2, seconds=0.3, seed=1),
+                    tmp_path / p) for p in ("excite", "trot")]
+    one, two = (load_measurements(p) for p in paths)
+    both = load_measurement_sets(paths)
+    assert len(both) == len(one) + len(two) and len(np.unique(both.episode)) == 4
+    np.testing.assert_array_equal(both.state[len(one):], two.state)
+    assert "excite" in both.description and "trot" in both.description
+    other = record(CollectConfig(source="mujoco", target=None, policy="stand", episodes=1, seconds=0.3,
+                                 sim=SimConfig(kp=40.0)), tmp_path / "stiff")
+    with pytest.raises(UserError, match="other control settings"):
+        load_measurement_sets([paths[0], other])

@@ -277,6 +277,35 @@ def test_hidden_effect_answer_lies_beside_the_dataset_never_inside(tmp_path, cap
         assert len(err) == 1 and message in err[0], err
 
 
+def test_a_sealed_robot_is_simulated_but_never_shown(tmp_path, capsys):
+    """A hidden-effect dataset (or its answer) given as a model: its effects drive the simulator,
+    its description names none, and it cannot be written out."""
+    from acn.cli import collect_main
+    from acn.errors import UserError
+    from acn.sim.hidden import answer_path, load_model
+
+    measured = tmp_path / "measured"
+    assert collect_main(["--source", "mujoco", "--policy", "stand", "--episodes", "1", "--seconds", "0.1",
+                         "--hidden-effect", "joint_damping:value=0.7345", "--out", str(measured)]) == 0
+    for spec in (measured, answer_path(measured)):
+        robot = load_model(spec)
+        assert robot.sealed and robot.describe() == "mujoco + sealed effects"
+        assert np.allclose(robot.sim_config(SimConfig()).params.joint_damping, 0.7345)
+        with pytest.raises(UserError, match="sealed"):
+            robot.to_json()
+    # the sealed robot as the target of a paired collection: the same actions, its own physics
+    paired = tmp_path / "paired"
+    assert collect_main(["--source", "mujoco", "--target", str(measured), "--policy", "trot", "--episodes", "1",
+                         "--seconds", "0.2", "--out", str(paired)]) == 0
+    from acn.datasets.reader import load_paired
+
+    data = load_paired([str(paired)])
+    vel = SLICES["joint_vel"]
+    assert np.abs(data.next_state[:, vel] - data.target_next_state[:, vel]).max() > 0.01
+    assert "0.7345" not in "".join(capsys.readouterr()) + (paired / "meta" / "info.json").read_text()
+    assert not answer_path(paired).exists()  # the target's effects stay with the robot's own answer
+
+
 def test_random_hidden_effects_are_realistic():
     rng = np.random.default_rng(0)
     for _ in range(40):

@@ -21,6 +21,10 @@ def test_no_option_given_builds_each_commands_config_with_the_configs_own_defaul
     assert _config(cli.fit_parser(), FitConfig(), cli._fit_flags(), ["d", "--out", "m"]) == FitConfig()
     assert _config(cli.ppo_parser(), PPOConfig(), cli._ppo_flags(), ["--eval", "p"]) == PPOConfig()
     assert _config(cli.diagnose_parser(), DiagnoseConfig(), cli._diagnose_flags(), ["d"]) == DiagnoseConfig()
+    from acn.transfer import TransferConfig
+
+    transfer = {k: f for k, f in cli._transfer_flags().items() if k != "hidden_effects"}  # repeatable: a list
+    assert _config(cli.transfer_parser(), TransferConfig(), transfer, ["--out", "x"]) == TransferConfig()
     sim = _config(cli.collect_parser(), SimConfig(), cli._sim_flags(), ["--out", "x"])
     assert all(getattr(sim, name) == getattr(SimConfig(), name) for name in cli._sim_flags())
 

@@ -127,7 +127,8 @@ def test_tiny_run_trains_applies_a_frozen_corrector_and_writes_the_papers_metric
     assert m["training"]["timesteps"] >= 1536 and m["training"]["episodes"] > first_metrics["training"]["episodes"]
     # the corrector is applied (MuJoCo + F differs from MuJoCo) and stays frozen
     fin = m["final_evaluation"]
-    assert fin["returns"]["mujoco_corrected"] != fin["returns"]["mujoco"] and len(fin["returns"]["pybullet"]) == 3
+    assert fin["returns"]["robot_corrected"] != fin["returns"]["robot"] and len(fin["returns"]["sim"]) == 3
+    assert fin["models"] == {"sim": "pybullet", "robot": "mujoco"} and len(fin["training_returns"]["robot"]) == 3
     assert m["corrector_frozen"] and all(c["digest"] == c["digest_at_retirement"] for c in m["correctors"])
     assert sha256(corrector_dir / "model.safetensors") == before
     from acn.rl.ppo import file_digest
@@ -148,7 +149,7 @@ def test_tiny_run_trains_applies_a_frozen_corrector_and_writes_the_papers_metric
     else:
         assert m["same_state_oracle"] is None
     # Algorithm 2's evaluations and the plot
-    assert len(m["evaluations"]) >= 3 and all("mujoco_corrected" in e["returns"] for e in m["evaluations"])
+    assert len(m["evaluations"]) >= 3 and all("robot_corrected" in e["returns"] for e in m["evaluations"])
     png = (out / "curves.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
     # it trains: the policy after the resumed half differs from the one after the first half
@@ -191,8 +192,51 @@ def test_eval_reloads_policy_and_corrector(tiny_run, capsys, tmp_path):
     assert rc == 0 and "eps_transfer (per step)" in text and "delta_corr (per episode)" in text
     assert "+- " in text and "20 episodes" in text
     ev = json.loads((tmp_path / "eval.json").read_text())
-    assert all(len(ev["returns"][run]) == 20 for run in ("pybullet", "mujoco", "mujoco_corrected"))
+    assert all(len(ev["returns"][run]) == 20 for run in ("sim", "robot", "robot_corrected"))
     assert ev["eps_transfer"]["n"] == 20 and np.isfinite(ev["gap"]["closer_by"]["stderr"])
+
+
+# ----- any model to train in, any robot to deploy on --------------------------------------------
+def test_a_models_effects_are_the_environments_physics():
+    from acn.sim.effects import Model, get_effect
+
+    damping = get_effect("joint_damping")
+    damped = Model("mujoco").with_effect(damping, damping.parse({"value": 2.0}))
+    nominal, heavy = A1Env("mujoco", seconds=0.3), A1Env(damped, seconds=0.3)
+    nominal.reset(seed=4)
+    heavy.reset(options={"state": nominal.state})
+    u = np.full(12, 0.5, dtype=np.float32)
+    a, b = nominal.step(u)[0], heavy.step(u)[0]
+    assert np.abs(a[SLICES["joint_vel"]] - b[SLICES["joint_vel"]]).max() > 0.05  # the same action, slower joints
+    assert heavy.model.describe().startswith("mujoco + joint_damping")
+    nominal.close()
+    heavy.close()
+
+
+def test_plain_ppo_in_one_model_evaluated_on_a_sealed_robot(tmp_path, capsys):
+    """--train mujoco --robot ROBOT without a corrector: plain PPO; the robot with hidden effects is
+    simulated (its returns differ) and never shown, in training or in --eval."""
+    from acn.sim.effects import AppliedEffect, get_effect
+    from acn.sim.hidden import write_answer
+
+    latency = get_effect("actuator_latency")
+    answer = write_answer(tmp_path / "robot", "mujoco", [AppliedEffect(latency, latency.parse({"seconds": 0.0234567}))], 0)
+    run = tmp_path / "run"
+    assert ppo_main(["--train", "mujoco", "--robot", str(answer), "--timesteps", "256", "--refit-every", "0",
+                     "--eval-every", "0", "--out", str(run), *TINY]) == 0
+    m = json.loads((run / "metrics.json").read_text())
+    fin = m["final_evaluation"]
+    assert fin["models"] == {"sim": "mujoco", "robot": "mujoco + sealed effects"}
+    assert "robot_corrected" not in fin["returns"] and m["corrector_frozen"] is None and not m["correctors"]
+    assert fin["returns"]["robot"] != fin["returns"]["sim"]
+    assert json.loads((run / "policy" / "config.json").read_text())["training"]["model"] == "mujoco"
+    assert ppo_main(["--eval", str(run / "policy"), "--robot", str(tmp_path / "robot"), "--episodes", "2",
+                     "--seconds", "0.3", "--out", str(tmp_path / "eval.json")]) == 0
+    ev = json.loads((tmp_path / "eval.json").read_text())
+    assert ev["models"]["robot"] == "mujoco + sealed effects" and len(ev["training_returns"]["robot"]) == 2
+    printed = capsys.readouterr()
+    assert "0.0234" not in printed.out + printed.err
+    assert "0.0234" not in (run / "metrics.json").read_text() + (run / "policy" / "config.json").read_text()
 
 
 # ----- bad input --------------------------------------------------------------------------
@@ -223,7 +267,8 @@ def _torque_corrector(out, tmp_path):
     ("resume_nothing", "no checkpoint"),
     ("eval_with_training_setting", "not --n-steps"),
     ("no_out", "needs --out"),
-    ("no_corrector", "nothing to correct with"),
+    ("corrector_for_another_robot", "fitted for a mujoco target"),
+    ("robot_not_a_model", "neither a backend"),
 ])
 def test_bad_input_is_one_line_and_exit_2(tiny_run, tmp_path, capsys, case, message):
     out = tiny_run[0]
@@ -239,7 +284,9 @@ def test_bad_input_is_one_line_and_exit_2(tiny_run, tmp_path, capsys, case, mess
         "resume_nothing": ["--timesteps", "64", "--out", str(new), "--resume"],
         "eval_with_training_setting": ["--eval", str(out / "policy"), "--n-steps", "64"],
         "no_out": ["--timesteps", "64", "--corrector", str(out / "corrector")],
-        "no_corrector": ["--timesteps", "64", "--out", str(new), "--refit-every", "0"],
+        "corrector_for_another_robot": ["--eval", str(out / "policy"), "--robot", "pybullet", "--corrector",
+                                        str(out / "corrector")],
+        "robot_not_a_model": ["--timesteps", "64", "--out", str(new), "--robot", "mujocco"],
     }[case]
     rc = ppo_main(args)
     err = capsys.readouterr().err

@@ -140,7 +140,22 @@ def load_data(paths: list[str | Path], cfg: FitConfig, target, log: Log) -> FitD
     effects = _target_effects(target, cfg.variant, target_sim)
     if effects:
         log(f"target: {target.describe()} (the network learns what these effects leave)")
-    return FitData(paired, config_from_metadata(paired.info, target_effects=effects), effects)
+    collect = config_from_metadata(paired.info, target_effects=effects, hidden_effects=_source_effects(paths, paired.info.source.simulator))
+    return FitData(paired, collect, effects)
+
+
+def _source_effects(paths: list[str | Path], backend: str) -> list:
+    """The effects the datasets' source was collected with (the answer beside each dataset,
+    ``acn.sim.hidden``: a model with effects or a robot with hidden ones as ``acn-collect --source``):
+    the rounds and the closed loop run the source again with them."""
+    from acn.sim.hidden import answer_path, sealed_robot
+
+    found = [sealed_robot(answer_path(p), backend).effects if answer_path(p).is_file() else [] for p in paths]
+    as_json = [[e.to_json() for e in effects] for effects in found]
+    if any(j != as_json[0] for j in as_json[1:]):
+        raise UserError("the datasets' sources were collected with different effects (their answer files differ); "
+                        "fit them separately")
+    return found[0]
 
 
 def _target_effects(target, variant: str, target_sim: str | None) -> list:

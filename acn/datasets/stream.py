@@ -89,7 +89,7 @@ def commit_quietly(writer: Committable, cfg: CollectConfig) -> Path:
     try:
         path = writer.commit()
         if cfg.hidden_effects:
-            write_answer(path, cfg.hidden_effects, cfg.seed)
+            write_answer(path, cfg.source, cfg.hidden_effects, cfg.seed)
         elif ANSWER.recognise(answer_path(path)):  # a stale answer of the dataset this one replaced
             answer_path(path).unlink()
         return path

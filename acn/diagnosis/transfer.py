@@ -50,7 +50,7 @@ def robot_config(dataset: str | Path, data: Measurements, side: str, model: Mode
 
     from acn.datasets.metadata import config_from_metadata
     from acn.corrector.evaluate import held_out
-    from acn.sim.hidden import answer_path
+    from acn.sim.hidden import answer_path, sealed_robot
     from acn.sim.policies import POLICIES
 
     info = data.info
@@ -63,13 +63,8 @@ def robot_config(dataset: str | Path, data: Measurements, side: str, model: Mode
         raise UserError(f"the model already has the corrector {model.corrector}; give --corrector only for a model "
                         "without one")
     cfg = config_from_metadata(info)
-    hidden: list = []
     answer = answer_path(dataset)
-    if answer.is_file():
-        from acn.jsonfile import read_json
-
-        effects = read_json(answer, f"{answer} does not exist").get("hidden_effects", [])
-        hidden = Model.from_json({"backend": cfg.source, "effects": effects}, where=str(answer)).effects
+    hidden = sealed_robot(answer, backend=cfg.source).effects if answer.is_file() else []
     cfg = replace(cfg, target=model.backend, hidden_effects=hidden, target_effects=list(model.effects))
     return held_out(cfg, episodes, seconds)
 

@@ -181,6 +181,40 @@ def load_measurements(path: str | Path, side: str = "source") -> Measurements:
                         missing=missing)
 
 
+def load_measurement_sets(paths: list[str | Path], side: str = "source") -> Measurements:
+    """Several datasets of one robot as one set of measurements (one dataset: ``load_measurements``).
+
+    Each keeps its episodes (renumbered after the previous dataset's); they must share the control
+    settings (rates, gains, torque limit, action mode) and the action layout, since one model with
+    one controller re-simulates them all. Metadata is the first dataset's; a channel missing in any
+    of them is missing in all."""
+    parts = [load_measurements(p, side=side) for p in paths]
+    if len(parts) == 1:
+        return parts[0]
+    first = parts[0]
+    for path, m in zip(paths[1:], parts[1:]):
+        a, b = first.info, m.info
+        same = (a.action_mode == b.action_mode and np.isclose(a.control_hz, b.control_hz)
+                and a.substeps == b.substeps and np.isclose(a.physics_dt, b.physics_dt)
+                and np.allclose(a.kp, b.kp) and np.allclose(a.kd, b.kd) and np.isclose(a.torque_limit, b.torque_limit)
+                and m.action.shape[1] == first.action.shape[1])
+        if not same:
+            raise UserError(f"{path} was recorded with other control settings (rates, gains, torque limit or action "
+                            f"mode) than {paths[0]}: diagnose them separately")
+    missing = sorted({c for m in parts for c in m.missing}, key=STATE_NAMES.index)
+    offsets = np.cumsum([0] + [int(m.episode.max()) + 1 for m in parts[:-1]])
+
+    def join(name: str) -> np.ndarray:
+        return np.concatenate([getattr(m, name) for m in parts])
+
+    state, next_state = join("state"), join("next_state")
+    for arr in (state, next_state):
+        arr[:, [STATE_NAMES.index(c) for c in missing]] = np.nan
+    return replace(first, state=state, action=join("action"), next_state=next_state, effort=join("effort"),
+                   episode=np.concatenate([m.episode + k for m, k in zip(parts, offsets)]), frame=join("frame"),
+                   description=" + ".join(m.description for m in parts), missing=missing)
+
+
 def fill_derived(m: Measurements, backend: str | None = None) -> tuple[Measurements, list[str]]:
     """Measurements whose missing VELOCITY channels are derived from positions (central
     differences along each episode, one-sided at its ends, angles wrapped), and whose missing

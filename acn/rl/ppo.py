@@ -1,37 +1,45 @@
 """PPO for the A1 with the frozen corrector in the loop: the paper's Algorithm 2 (``acn-ppo``).
 
+Two models (``acn.sim.hidden.load_model``: pybullet, mujoco, a model JSON file, a sealed robot):
+``PPOConfig.train``, where the policy is trained (PyBullet in the paper), and ``PPOConfig.robot``,
+where it is deployed and corrected (MuJoCo in the paper).
+
 Top to bottom (one file, every hyper-parameter in ``PPOConfig``; stable-baselines3 PPO):
 
-1. environments: ``n_envs`` PyBullet ``A1Env`` (``acn.sim.envs``), one subprocess each
-   (``SubprocVecEnv``), ``VecMonitor`` (raw episode returns), ``VecNormalize`` (observation
+1. environments: ``n_envs`` ``A1Env`` of the training model (``acn.sim.envs``), one subprocess
+   each (``SubprocVecEnv``), ``VecMonitor`` (raw episode returns), ``VecNormalize`` (observation
    statistics and reward scale for PPO);
 2. policy: SB3's actor-critic MLP on the state channels the corrector reads (absolute x, y and
    yaw dropped, ``StateChannels``); its action is a residual on the open-loop trot, so the
    untrained policy already walks and PPO refines it;
 3. Algorithm 2 (``Algorithm2`` callback, at rollout boundaries, when the policy is fixed):
-   - every ``refit_every`` episodes: run the current policy in PyBullet with the same actions
-     replayed in MuJoCo from the same initial state (``PairedRollout``), write the pairs as a
-     LeRobot dataset and refit the corrector F with acn-fit's code (``acn.corrector.fit.fit``,
-     variant ``corrector_variant``) on the latest ``refit_window`` datasets;
+   - every ``refit_every`` episodes: run the current policy in the training model with the
+     same actions replayed on the robot from the same initial state (``PairedRollout``), write
+     the pairs as a LeRobot dataset and refit the corrector F with acn-fit's code
+     (``acn.corrector.fit.fit``, variant ``corrector_variant``, the robot re-simulated with its
+     effects) on the latest ``refit_window`` datasets;
    - every ``eval_every`` episodes: ``evaluate_transfer``: the deterministic policy, closed
-     loop, from the same held-out initial states, in PyBullet, in MuJoCo, and in MuJoCo with
-     ``pi_corr(s) = pi(s) + F(s, pi(s))``;
+     loop, from the same held-out initial states, in the training model, on the robot, and on
+     the robot with ``pi_corr(s) = pi(s) + F(s, pi(s))``;
+   with ``refit_every`` 0 and no corrector given, plain PPO: no F, the evaluations without it;
 4. at the end: a final evaluation over ``final_eval_episodes`` (>= 20), the paper's Table 1
    statistics, ``metrics.json``, ``curves.png``, the shareable policy (``policy_io``).
 
-WHERE THE CORRECTION IS APPLIED. In the TARGET (MuJoCo) only, at evaluation, as the paper's
+WHERE THE CORRECTION IS APPLIED. On the robot (the TARGET) only, at evaluation, as the paper's
 formula says: F maps the target's state and the policy's action to the action that makes the
-target behave like the source. PPO trains the plain policy in PyBullet (the source) with no
-correction; the paper's Algorithm 2 listing applies F in PyBullet during training, which
-would correct the simulator that needs no correction. F is never trained by PPO: it is a
+target behave like the source. PPO trains the plain policy in the training model (the source)
+with no correction; the paper's Algorithm 2 listing applies F in PyBullet during training,
+which would correct the simulator that needs no correction. F is never trained by PPO: it is a
 frozen ``Corrector`` (no gradients, not in PPO's optimiser) replaced only by refits, and the
 sha256 of its tensors is recorded when it is loaded and checked when it is retired.
 
-Rewards. The paper's reward ``w = (1.0, 0.01, 0.5, 0.1)`` is what every evaluation reports
-(eps_transfer, delta_corr). PPO trains on the same four terms with ``train_reward_weights``
+Rewards. The paper's reward ``w = (1.0, 0.01, 0.5, 0.1)`` is what the paper's statistics
+report (eps_transfer, delta_corr). PPO trains on the same four terms with ``train_reward_weights``
 plus an ``alive_bonus``: with the paper's weights standing still (-1.0 per step) beats the
 trot (-10 per step, mostly torque and joint-speed penalties) and an early fall beats both (the
-return is a sum of negative rewards), so a PPO that maximises them learns not to walk.
+return is a sum of negative rewards), so a PPO that maximises them learns not to walk. Every
+evaluation records both returns per episode: the paper's (``returns``) and the training
+reward's (``training_returns``, the objective the policy was trained for).
 """
 
 from __future__ import annotations
@@ -68,9 +76,11 @@ from acn.corrector.config import FitConfig
 from acn.rl.policy_io import WalkingPolicy, policy_config
 from acn.sim.backends import ACTION_MODES, SimConfig
 from acn.sim.collector import CollectConfig, initial_state
+from acn.sim.effects import Model
 from acn.sim.envs import A1Env, EnvConfig
+from acn.sim.hidden import load_model
 from acn.sim.policies import POLICIES
-from acn.sim.reward import REWARD_WEIGHTS
+from acn.sim.reward import REWARD_WEIGHTS, weighted
 from acn.sim.state import STATE_NAMES
 
 RUN_MANIFEST, RUN_FORMAT, EVAL_FORMAT = "run.json", "acn-ppo-run/1", "acn-ppo-eval/1"
@@ -91,12 +101,14 @@ class PPOConfig:
     """Every hyper-parameter of acn-ppo; each is an option of the command (``n_steps``: ``--n-steps``)."""
 
     # ----- run
-    timesteps: int = 500_000            # PyBullet control steps, all environments together
+    timesteps: int = 500_000            # control steps in the training model, all environments together
     seed: int = 0
-    n_envs: int = 2                     # PyBullet environments, one subprocess each
+    n_envs: int = 2                     # training environments, one subprocess each
     torch_threads: int = 1              # PPO's own process (the simulators run in the others)
     checkpoint_every: int = 50_000      # timesteps between resumable checkpoints
-    # ----- task (the training environments; evaluations use the same robot and time limit)
+    # ----- task (the training environments; evaluations use the same controller and time limit)
+    train: str = "pybullet"             # the training model: pybullet, mujoco, a model file or a sealed robot
+    robot: str = "mujoco"               # where the policy is deployed and F applied: the same choices
     seconds: float = 10.0               # episode time limit, s
     base_policy: str = "trot"           # built-in gait the policy is a residual on
     residual_scale: float = 0.3         # rad of joint target per unit of action
@@ -126,11 +138,11 @@ class PPOConfig:
     clip_obs: float = 10.0
     # ----- Algorithm 2
     refit_every: int = 50               # episodes between corrector refits; 0: never refit
-    eval_every: int = 100               # episodes between MuJoCo evaluations; 0: only the final one
+    eval_every: int = 100               # episodes between evaluations on the robot; 0: only the final one
     eval_episodes: int = 10             # per evaluation during training
     final_eval_episodes: int = 20
     eval_seconds: float = 10.0
-    refit_episodes: int = 4             # paired PyBullet -> MuJoCo episodes collected per refit
+    refit_episodes: int = 4             # paired training model -> robot episodes collected per refit
     refit_seconds: float = 10.0
     refit_window: int = 4               # a refit fits on the latest this-many paired datasets
     corrector_variant: str = field(default_factory=lambda: FitConfig().variant)  # acn-fit's default
@@ -156,7 +168,7 @@ class PPOConfig:
                          action_mode=self.action_mode, kp=self.kp, kd=self.kd, torque_limit=self.torque_limit)
 
     def env(self) -> EnvConfig:
-        """The training task (PyBullet)."""
+        """The training task (the controller and reward; the physics is the training model's)."""
         return EnvConfig(sim=self.sim(), seconds=self.seconds, reward_weights=tuple(self.train_reward_weights),
                          alive_bonus=self.alive_bonus, base_policy=self.base_policy,
                          residual_scale=self.residual_scale)
@@ -192,17 +204,25 @@ class PPOConfig:
             self.env().validate()
         except ValueError as e:
             raise UserError(str(e)) from None
+        for name in ("train", "robot"):
+            model = load_model(getattr(self, name))
+            if model.corrector:
+                raise UserError(f"--{name} carries a corrector ({model.corrector}); give --corrector instead")
+
+    def models(self) -> tuple[Model, Model]:
+        """(training model, robot)."""
+        return load_model(self.train), load_model(self.robot)
 
 
 # ----- environments and the SB3 model ---------------------------------------------------------
-def _make_env(env_cfg: EnvConfig) -> A1Env:
+def _make_env(model: str, env_cfg: EnvConfig) -> A1Env:
     torch.set_num_threads(1)
-    return A1Env("pybullet", env_cfg)
+    return A1Env(model, env_cfg)
 
 
 def make_vec_env(cfg: PPOConfig, training: bool = True):
-    """PyBullet training environments: subprocesses -> VecMonitor -> VecNormalize."""
-    fns = [partial(_make_env, cfg.env()) for _ in range(cfg.n_envs)]
+    """Training environments (the training model): subprocesses -> VecMonitor -> VecNormalize."""
+    fns = [partial(_make_env, cfg.train, cfg.env()) for _ in range(cfg.n_envs)]
     venv = SubprocVecEnv(fns) if cfg.n_envs > 1 else DummyVecEnv(fns)
     venv.seed(cfg.seed)
     return VecNormalize(VecMonitor(venv), training=training, norm_obs=True, norm_reward=cfg.norm_reward,
@@ -293,42 +313,59 @@ def file_digest(corrector_dir: str | Path) -> str:
     return tensor_digest(load_file(str(Path(corrector_dir) / "model.safetensors")))
 
 
-def load_corrector(directory: str | Path, env: EnvConfig) -> Corrector:
-    """A frozen corrector that fits ``env``'s robot in MuJoCo as is (action mode, control rate,
-    no effects); one-line errors."""
+def load_corrector(directory: str | Path, env: EnvConfig, robot: Model) -> Corrector:
+    """A frozen corrector that fits ``robot`` (its simulator and effects) driven by ``env``'s
+    controller (action mode, control rate); one-line errors."""
     d = Path(directory)
     if not d.is_dir():
         raise UserError(f"corrector directory {d} does not exist")
-    return load_for_target(d, TargetDescription("mujoco", env.sim.action_mode, round(1.0 / env.sim.control_dt, 9)))
+    return load_for_target(d, TargetDescription(robot.backend, env.sim.action_mode, round(1.0 / env.sim.control_dt, 9),
+                                                effects=tuple(e.to_json() for e in robot.effects)))
 
 
-# ----- evaluation: PyBullet, MuJoCo, MuJoCo + F -------------------------------------------------
-RUNS = ("pybullet", "mujoco", "mujoco_corrected")
+# ----- evaluation: the training model, the robot, the robot + F -----------------------------------
+RUNS = ("sim", "robot", "robot_corrected")  # "sim": the policy's own training model
+RUN_LABELS = {"sim": "training model", "robot": "robot", "robot_corrected": "robot + F"}
+END_KINDS = ("time_limit", "fell", "diverged")
 
 
-def _episode(env: A1Env, policy: WalkingPolicy, s0: np.ndarray) -> tuple[np.ndarray, str, float]:
-    """(per-step paper rewards, how it ended, mean forward speed m/s) of one closed-loop episode."""
+@dataclass
+class EpisodeResult:
+    """One closed-loop episode: per-step paper rewards and training rewards, how it ended, speed."""
+
+    paper: np.ndarray
+    training: np.ndarray
+    end: str
+    forward_speed: float  # mean v_x over the episode, m/s
+
+
+def _episode(env: A1Env, policy: WalkingPolicy, s0: np.ndarray, training: EnvConfig) -> EpisodeResult:
+    """One closed-loop episode of the deterministic policy; the training reward with ``training``'s
+    weights and alive bonus."""
     obs, _ = env.reset(options={"state": s0})
     policy.reset(np.random.default_rng(0))
-    rewards, speed = [], []
+    paper, trained, speed = [], [], []
     while True:
         obs, _, terminated, truncated, info = env.step(policy.residual(obs))
-        rewards.append(info["paper_reward"])
+        paper.append(info["paper_reward"])
+        bonus = 0.0 if info["fallen"] else training.alive_bonus  # the training environment's reward, A1Env.step
+        trained.append(0.0 if info["diverged"] else float(weighted(info["reward_terms"], training.reward_weights)) + bonus)
         speed.append(info["reward_terms"][0])
         if terminated or truncated:
             end = "diverged" if info["diverged"] else ("fell" if info["fallen"] else "time_limit")
-            return np.array(rewards), end, float(np.mean(speed))
+            return EpisodeResult(np.array(paper), np.array(trained), end, float(np.mean(speed)))
 
 
 def same_state_oracle_rewards(policy: WalkingPolicy, env: EnvConfig, corrector: Corrector | None,
-                               states: list[np.ndarray]) -> list[np.ndarray] | None:
-    """OPTIONAL bound (issue 7): MuJoCo's per-step paper rewards with the same-state oracle, or None.
+                               states: list[np.ndarray], sim: Model, robot: Model) -> list[np.ndarray] | None:
+    """OPTIONAL bound: the robot's per-step paper rewards with the same-state oracle, or None.
 
     Filled only where ``acn.corrector.evaluate`` offers ``same_state_oracle``: the policy acts on
-    MuJoCo's own state and every action is replaced by the oracle's (from that state, PyBullet
-    re-simulated one control step with a; delta_a solved so MuJoCo's next state matches it):
-    the best any per-step F(s, a) can do for the paper's objective. Channel weights: 1 / the
-    corrector's training spread where it has one. Slow (a Gauss-Newton solve per step).
+    the robot's own state and every action is replaced by the oracle's (from that state, the
+    training model re-simulated one control step with a; delta_a solved so the robot's next
+    state matches it): the best any per-step F(s, a) can do for the paper's objective. Channel
+    weights: 1 / the corrector's training spread where it has one. Slow (a Gauss-Newton solve
+    per step).
     """
     from acn.corrector import evaluate
 
@@ -338,79 +375,97 @@ def same_state_oracle_rewards(policy: WalkingPolicy, env: EnvConfig, corrector: 
     norm = None if corrector is None else corrector.card.normalisation
     spread = None if norm is None else norm.state_spread
     return [np.asarray(r, dtype=float) for r in oracle(
-        env.sim, policy, states, env.seconds, source="pybullet", target="mujoco",
-        channel_scale=None if spread is None else np.asarray(spread, dtype=float))]
+        robot.sim_config(env.sim), policy, states, env.seconds, source=sim.backend, target=robot.backend,
+        source_sim=sim.sim_config(env.sim), channel_scale=None if spread is None else np.asarray(spread, dtype=float))]
 
 
 def evaluate_transfer(policy: WalkingPolicy, corrector: Corrector | None, episodes: int, seconds: float,
-                      seed: int = 0, oracle_episodes: int = 0) -> dict:
-    """The policy, deterministic and closed loop in each simulator, from the same held-out starts.
+                      seed: int = 0, oracle_episodes: int = 0, robot: Model | None = None,
+                      sim: Model | None = None) -> dict:
+    """The policy, deterministic and closed loop, from the same held-out starts, in ``sim`` (default
+    the model it was trained in, ``training_model``), on ``robot`` (default MuJoCo) and on the robot
+    with pi_corr = pi + F(s, pi(s)) (F applied on the robot, the TARGET).
 
-    Runs: PyBullet (the source it was trained in), MuJoCo, MuJoCo with pi_corr = pi + F(s, pi(s))
-    (F applied in MuJoCo, the TARGET). Rewards are the paper's (weights ``REWARD_WEIGHTS``).
-    eps_transfer = mean_i (R_i^MJ,corr - R_i^PB), delta_corr = mean_i (R_i^PB - R_i^MJ). Table 1
-    statistics (mean, mode, expectation; ``distribution_stats``) are over per-step reward
-    differences on each episode's common horizon, as ``acn.corrector.evaluate.closed_loop`` does.
-    ``oracle_episodes`` > 0: also the same-state oracle on the first that-many starts (OPTIONAL,
-    ``same_state_oracle_rewards``; ``None`` in the result where it is not available).
+    Per episode: the paper's return (``returns``, weights ``REWARD_WEIGHTS``), the training
+    reward's (``training_returns``: the policy's own weights and alive bonus), how it ended, the
+    mean forward speed. eps_transfer = mean_i (R_i^robot,corr - R_i^sim), delta_corr = mean_i
+    (R_i^sim - R_i^robot), paper's reward. Table 1 statistics (mean, mode, expectation;
+    ``distribution_stats``) are over per-step reward differences on each episode's common
+    horizon, as ``acn.corrector.evaluate.closed_loop`` does. ``oracle_episodes`` > 0: also the
+    same-state oracle on the first that-many starts (OPTIONAL, ``same_state_oracle_rewards``;
+    ``None`` in the result where it is not available).
     """
     with torch_threads(1):
-        return _evaluate_transfer(policy, corrector, episodes, seconds, seed, oracle_episodes)
+        return _evaluate_transfer(policy, corrector, episodes, seconds, seed, oracle_episodes,
+                                  robot or Model("mujoco"), sim or training_model(policy))
+
+
+def training_model(policy: WalkingPolicy) -> Model:
+    """The model a policy was trained in (its ``training.model``; PyBullet where it names none)."""
+    spec = policy.config.get("training", {}).get("model", "pybullet")
+    try:
+        return load_model(spec)
+    except UserError as e:
+        raise UserError(f"the policy's training model cannot be loaded ({e}); give it with --sim") from None
 
 
 def _evaluate_transfer(policy: WalkingPolicy, corrector: Corrector | None, episodes: int, seconds: float, seed: int,
-                       oracle_episodes: int) -> dict:
+                       oracle_episodes: int, robot: Model, sim: Model) -> dict:
     env_cfg = replace(policy.env, seconds=seconds, reward_weights=REWARD_WEIGHTS, alive_bonus=0.0)
     init = CollectConfig(seed=seed + HELD_OUT_SEED_OFFSET, init_noise=env_cfg.init_noise, sim=env_cfg.sim)
     states = [initial_state(init, i) for i in range(episodes)]
     per_step: dict[str, list[np.ndarray]] = {}
     out: dict = {"episodes": episodes, "seconds": seconds, "seed": init.seed, "corrected": corrector is not None,
-                 "returns": {}, "ends": {}, "forward_speed": {}}
+                 "models": {"sim": sim.describe(), "robot": robot.describe()},
+                 "returns": {}, "training_returns": {}, "ends": {}, "forward_speed": {}, "episode_ends": {},
+                 "episode_forward_speed": {}}
     for run in RUNS:
-        if run == "mujoco_corrected" and corrector is None:
+        if run == "robot_corrected" and corrector is None:
             continue
-        env = A1Env("pybullet" if run == "pybullet" else "mujoco", env_cfg,
-                    corrector=corrector if run == "mujoco_corrected" else None)
+        env = A1Env(sim if run == "sim" else robot, env_cfg, corrector=corrector if run == "robot_corrected" else None)
         try:
-            results = [_episode(env, policy, s0) for s0 in states]
+            results = [_episode(env, policy, s0, policy.env) for s0 in states]
         finally:
             env.close()
-        per_step[run] = [r for r, _, _ in results]
-        out["returns"][run] = [float(r.sum()) for r in per_step[run]]
-        out["ends"][run] = {e: sum(1 for _, end, _ in results if end == e) for e in ("time_limit", "fell", "diverged")}
-        out["forward_speed"][run] = float(np.mean([v for _, _, v in results]))
+        per_step[run] = [r.paper for r in results]
+        out["returns"][run] = [float(r.paper.sum()) for r in results]
+        out["training_returns"][run] = [float(r.training.sum()) for r in results]
+        out["ends"][run] = {e: sum(1 for r in results if r.end == e) for e in END_KINDS}
+        out["episode_ends"][run] = [r.end for r in results]
+        out["episode_forward_speed"][run] = [r.forward_speed for r in results]
+        out["forward_speed"][run] = float(np.mean(out["episode_forward_speed"][run]))
     R = {k: np.array(v) for k, v in out["returns"].items()}
 
     def step_diff(a: list[np.ndarray], b: list[np.ndarray]) -> np.ndarray:
         return np.concatenate([x[: min(len(x), len(y))] - y[: min(len(x), len(y))] for x, y in zip(a, b)])
 
-    out["delta_corr"] = episode_stats(R["pybullet"] - R["mujoco"])
-    out["eps_transfer_uncorrected"] = episode_stats(R["mujoco"] - R["pybullet"])
-    out["step_stats"] = {"delta_corr": distribution_stats(step_diff(per_step["pybullet"], per_step["mujoco"]))}
-    gap_unc = np.abs(R["mujoco"] - R["pybullet"])
+    out["delta_corr"] = episode_stats(R["sim"] - R["robot"])
+    out["eps_transfer_uncorrected"] = episode_stats(R["robot"] - R["sim"])
+    out["step_stats"] = {"delta_corr": distribution_stats(step_diff(per_step["sim"], per_step["robot"]))}
+    gap_unc = np.abs(R["robot"] - R["sim"])
     if corrector is not None:
-        out["eps_transfer"] = episode_stats(R["mujoco_corrected"] - R["pybullet"])
-        out["step_stats"]["eps_transfer"] = distribution_stats(step_diff(per_step["mujoco_corrected"],
-                                                                         per_step["pybullet"]))
-        gap_cor = np.abs(R["mujoco_corrected"] - R["pybullet"])
+        out["eps_transfer"] = episode_stats(R["robot_corrected"] - R["sim"])
+        out["step_stats"]["eps_transfer"] = distribution_stats(step_diff(per_step["robot_corrected"],
+                                                                         per_step["sim"]))
+        gap_cor = np.abs(R["robot_corrected"] - R["sim"])
         out["gap"] = {
             "uncorrected": episode_stats(gap_unc), "corrected": episode_stats(gap_cor),
-            "closer_by": episode_stats(gap_unc - gap_cor),  # > 0: the corrected MuJoCo return is closer to PyBullet's
+            "closer_by": episode_stats(gap_unc - gap_cor),  # > 0: the corrected robot's return is closer to the sim's
             "fraction_closed": float(1.0 - abs(out["eps_transfer"]["mean"]) / abs(out["delta_corr"]["mean"]))
             if out["delta_corr"]["mean"] else None,
         }
     out["same_state_oracle"] = None  # OPTIONAL field: filled only where the oracle exists and was asked for
     n = min(oracle_episodes, episodes)
-    oracle = same_state_oracle_rewards(policy, env_cfg, corrector, states[:n]) if n > 0 else None
+    oracle = same_state_oracle_rewards(policy, env_cfg, corrector, states[:n], sim, robot) if n > 0 else None
     if oracle is not None:
         r_or = np.array([r.sum() for r in oracle])
         steps = [len(r) for r in oracle]
         out["same_state_oracle"] = {
             "episodes": n, "returns": r_or.tolist(),
             "full_length_episodes": int(sum(k == env_cfg.max_steps for k in steps)),
-            "eps_transfer": episode_stats(r_or - R["pybullet"][:n]),
-            "eps_transfer_uncorrected_same_episodes": episode_stats(R["mujoco"][:n] - R["pybullet"][:n]),
-            "eps_transfer_corrector_same_episodes": (episode_stats(R["mujoco_corrected"][:n] - R["pybullet"][:n])
+            "eps_transfer": episode_stats(r_or - R["sim"][:n]),
+            "eps_transfer_uncorrected_same_episodes": episode_stats(R["robot"][:n] - R["sim"][:n]),
+            "eps_transfer_corrector_same_episodes": (episode_stats(R["robot_corrected"][:n] - R["sim"][:n])
                                                      if corrector is not None else None),
         }
     return out
@@ -428,16 +483,19 @@ def format_table(ev: dict) -> str:
         if key in ev:
             s = ev[key]
             lines.append(f"{label:<34}{s['mean']:>12.2f}   +- {s['std']:.2f} (std over {n} episodes)")
-    lines.append("returns (paper's reward), mean +- std over episodes; ends; forward speed:")
+    models = ev.get("models", {})
+    lines.append(f"training model: {models.get('sim', '?')}; robot: {models.get('robot', '?')}")
+    lines.append("returns, mean +- std over episodes (paper's reward | training reward); ends; forward speed:")
     for run in RUNS:
         if run in ev["returns"]:
-            r = np.array(ev["returns"][run])
+            r, t = np.array(ev["returns"][run]), np.array(ev["training_returns"][run])
             ends = ", ".join(f"{v} {k}" for k, v in ev["ends"][run].items() if v)
-            lines.append(f"  {run:<18}{r.mean():>12.2f} +- {r.std(ddof=1) if n > 1 else 0:.2f}   ({ends}; "
+            lines.append(f"  {RUN_LABELS[run]:<16}{r.mean():>12.2f} +- {r.std(ddof=1) if n > 1 else 0:.2f} | "
+                         f"{t.mean():.2f} +- {t.std(ddof=1) if n > 1 else 0:.2f}   ({ends}; "
                          f"{ev['forward_speed'][run]:.3f} m/s)")
     if "gap" in ev:
         g = ev["gap"]
-        lines.append(f"|R_MJ - R_PB|: uncorrected {g['uncorrected']['mean']:.2f}, corrected {g['corrected']['mean']:.2f}; "
+        lines.append(f"|R_robot - R_sim|: uncorrected {g['uncorrected']['mean']:.2f}, corrected {g['corrected']['mean']:.2f}; "
                      f"closer by {g['closer_by']['mean']:.2f} +- {g['closer_by']['stderr']:.2f} (stderr)")
     o = ev.get("same_state_oracle")
     if o:
@@ -494,12 +552,20 @@ class Trainer:
             raise UserError("--resume continues with the checkpoint's corrector; drop --corrector")
         if corrector_dir is not None and not Path(corrector_dir).is_dir():
             raise UserError(f"corrector directory {corrector_dir} does not exist")
-        if corrector_dir is None and self.cfg.refit_every == 0 and not self.state.correctors:
-            raise UserError("nothing to correct with: give --corrector DIR or --refit-every > 0")
         self.env_cfg = self.cfg.env()
+        self.sim, self.robot = self.cfg.models()
+        if self.cfg.refit_every and self.sim.effects:
+            raise UserError("refits re-simulate the training model as a dataset records it, without effects: train "
+                            "in pybullet or mujoco, or give --refit-every 0 (and --corrector DIR, or none)")
+        if self.cfg.refit_every and self.robot.effects:
+            from acn.corrector.acn import LABELLED
+
+            if self.cfg.corrector_variant not in LABELLED:
+                raise UserError(f"a robot with effects is re-simulated only by the variants {', '.join(LABELLED)}; "
+                                f"--variant {self.cfg.corrector_variant} cannot be refitted on it")
         self.corrector: Corrector | None = None
         self.corrector_digest: str | None = None
-        given = load_corrector(corrector_dir, self.env_cfg) if corrector_dir is not None else None
+        given = load_corrector(corrector_dir, self.env_cfg, self.robot) if corrector_dir is not None else None
         # A new run over an earlier one trains beside it and replaces it only when complete (``run``):
         # a run that fails or is interrupted leaves the earlier one as it was.
         self.replaces: Path | None = None
@@ -510,7 +576,7 @@ class Trainer:
         write_file(self.out / RUN_MANIFEST, json.dumps({"format": RUN_FORMAT}) + "\n")
         if resume and self.state.correctors:
             last = self.state.correctors[-1]
-            self._use_corrector(load_corrector(self.out / last["dir"], self.env_cfg), last["dir"], None)
+            self._use_corrector(load_corrector(self.out / last["dir"], self.env_cfg, self.robot), last["dir"], None)
         elif given is not None:  # a copy inside the run keeps it self-contained; same tensors, same digest
             copy = self.out / "correctors" / "given"
             shutil.copytree(corrector_dir, copy)
@@ -553,7 +619,8 @@ class Trainer:
     def _training_info(self) -> dict:
         from importlib.metadata import version
 
-        return {"algorithm": f"PPO (stable-baselines3 {version('stable_baselines3')})", "simulator": "pybullet",
+        return {"algorithm": f"PPO (stable-baselines3 {version('stable_baselines3')})", "model": self.cfg.train,
+                "simulator": self.sim.backend,
                 "timesteps": self.state.timesteps, "episodes": self.state.episodes, "ppo_config": asdict(self.cfg)}
 
     def refit(self) -> None:
@@ -565,9 +632,11 @@ class Trainer:
 
         t0 = time.perf_counter()
         cfg, k = self.cfg, len(self.state.datasets)
-        ccfg = CollectConfig(source="pybullet", target="mujoco", policy="ppo", episodes=cfg.refit_episodes,
-                             seconds=cfg.refit_seconds, seed=REFIT_SEED_BASE + 10_000 * cfg.seed + k,
-                             sim=self.env_cfg.sim, init_noise=self.env_cfg.init_noise)
+        ccfg = CollectConfig(source=self.sim.backend, target=self.robot.backend, policy="ppo",
+                             episodes=cfg.refit_episodes, seconds=cfg.refit_seconds,
+                             seed=REFIT_SEED_BASE + 10_000 * cfg.seed + k, sim=self.env_cfg.sim,
+                             init_noise=self.env_cfg.init_noise, hidden_effects=list(self.sim.effects),
+                             target_effects=list(self.robot.effects))
         rollout = PairedRollout(ccfg, policy=self.current_policy())
         try:
             episodes = [rollout.episode(i) for i in range(ccfg.episodes)]
@@ -576,7 +645,8 @@ class Trainer:
         rel = f"paired/refit_{k:03d}"
         path = self.out / rel
         writer = DatasetWriter(path, fps=int(round(1.0 / ccfg.sim.control_dt)), paired=True,
-                               task="ppo policy (pybullet -> mujoco)", acn_meta=collection_metadata(ccfg),
+                               task=f"ppo policy ({self.sim.backend} -> {self.robot.backend})",
+                               acn_meta=collection_metadata(ccfg),
                                overwrite=True)
         try:
             for ep in episodes:
@@ -589,7 +659,7 @@ class Trainer:
         paths = [self.out / d for d in self.state.datasets[-cfg.refit_window:]]
         fcfg = FitConfig(variant=cfg.corrector_variant, epochs=cfg.fit_epochs, eval_episodes=0, seed=cfg.seed)
         try:
-            model, metrics = fit(paths, fcfg, log=lambda s: None)
+            model, metrics = fit(paths, fcfg, log=lambda s: None, target=self.robot if self.robot.effects else None)
         except UserError as e:  # e.g. the policy fell at once: too few rows; keep the current F
             self.log(f"refit {k} skipped at episode {self.state.episodes}: {e}")
             self.state.wall["refit"] += time.perf_counter() - t0
@@ -609,14 +679,15 @@ class Trainer:
         """Algorithm 2's evaluation (kept in the history unless ``final``)."""
         t0 = time.perf_counter()
         ev = evaluate_transfer(self.current_policy(), self.corrector, episodes, self.cfg.eval_seconds, self.cfg.seed,
-                               oracle_episodes)
+                               oracle_episodes, robot=self.robot, sim=self.sim)
         ev.update(timesteps=self.state.timesteps, episode=self.state.episodes,
                   corrector=self.state.correctors[-1]["dir"] if self.state.correctors else None)
         if not final:
             self.state.evaluations.append(ev)
         r = {k: np.mean(v) for k, v in ev["returns"].items()}
-        self.log(f"{'final eval' if final else 'eval'} at episode {self.state.episodes} ({self.state.timesteps} steps): return PyBullet "
-                 f"{r['pybullet']:.1f}, MuJoCo {r['mujoco']:.1f}, MuJoCo+F {r.get('mujoco_corrected', float('nan')):.1f}; "
+        self.log(f"{'final eval' if final else 'eval'} at episode {self.state.episodes} ({self.state.timesteps} steps): "
+                 f"return (paper's reward) training model {r['sim']:.1f}, robot {r['robot']:.1f}, robot + F "
+                 f"{r.get('robot_corrected', float('nan')):.1f}; "
                  f"eps_transfer {ev.get('eps_transfer', {}).get('mean', float('nan')):.1f}, "
                  f"delta_corr {ev['delta_corr']['mean']:.1f}")
         self.state.wall["evaluate"] += time.perf_counter() - t0
@@ -676,7 +747,7 @@ class Trainer:
             self.log(f"resumed {self.out} at {st.timesteps} steps, episode {st.episodes}")
         else:
             self.model = make_model(cfg, self.norm)
-            if self.corrector is None:  # Algorithm 2 at k = 0: F for the initial policy
+            if self.corrector is None and cfg.refit_every:  # Algorithm 2 at k = 0: F for the initial policy
                 self.refit()
             if cfg.eval_every:
                 self.evaluate(cfg.eval_episodes)
@@ -692,8 +763,9 @@ class Trainer:
         st.timesteps = int(self.model.num_timesteps)
         self.checkpoint()
         self.norm.close()
-        self.log(f"final evaluation: {cfg.final_eval_episodes} episodes of {cfg.eval_seconds:g} s in PyBullet, "
-                 f"MuJoCo and MuJoCo + F")
+        self.log(f"final evaluation: {cfg.final_eval_episodes} episodes of {cfg.eval_seconds:g} s in the training "
+                 f"model ({self.sim.describe()}) and on the robot ({self.robot.describe()})"
+                 + (", with and without F" if self.corrector is not None else ""))
         final = self.evaluate(cfg.final_eval_episodes, final=True, oracle_episodes=cfg.oracle_episodes)
         self._retire_corrector()
         if self.corrector is not None:
@@ -718,11 +790,11 @@ class Trainer:
             "gap": final.get("gap"),
             "same_state_oracle": final.get("same_state_oracle"),  # OPTIONAL: None until evaluate offers it
             "definitions": {
-                "eps_transfer": "R^MJ,corrected - R^PB (paper's reward); Table 1 stats over per-step differences",
-                "delta_corr": "R^PB - R^MJ,uncorrected (paper's reward); Table 1 stats over per-step differences",
+                "eps_transfer": "R^robot,corrected - R^sim (paper's reward); Table 1 stats over per-step differences",
+                "delta_corr": "R^sim - R^robot,uncorrected (paper's reward); Table 1 stats over per-step differences",
                 "per_episode": "the same over per-episode returns: mean, std, stderr, n",
-                "correction": "pi_corr(s) = pi(s) + F(s, pi(s)) applied in the TARGET (MuJoCo) only; "
-                              "PPO trains pi in PyBullet uncorrected",
+                "correction": "pi_corr(s) = pi(s) + F(s, pi(s)) applied on the robot (the TARGET) only; "
+                              "PPO trains pi in the training model (sim) uncorrected",
             },
             "final_evaluation": final,
             "evaluations": [{k: e[k] for k in ("timesteps", "episode", "returns", "delta_corr", "corrector")}
@@ -733,7 +805,7 @@ class Trainer:
                          "train_reward_weights": list(self.cfg.train_reward_weights),
                          "alive_bonus": self.cfg.alive_bonus},
             "correctors": st.correctors,
-            "corrector_frozen": all(c.get("unchanged", False) for c in st.correctors),
+            "corrector_frozen": all(c.get("unchanged", False) for c in st.correctors) if st.correctors else None,
             "config": asdict(self.cfg),
         }
         return m
@@ -798,7 +870,7 @@ def write_json(path: str | Path, data: dict) -> None:
 
 
 def plot_curves(state: RunState, final: dict | None, path: Path) -> None:
-    """Training returns (PyBullet, training reward) and evaluation returns (paper's reward) as PNG."""
+    """Training returns (training model, training reward) and evaluation returns (paper's reward) as PNG."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -811,13 +883,13 @@ def plot_curves(state: RunState, final: dict | None, path: Path) -> None:
         k = max(1, min(50, len(c) // 10))
         a.plot(c[k - 1:, 0], np.convolve(c[:, 2], np.ones(k) / k, mode="valid"), color="tab:blue",
                label=f"mean of {k}")
-    a.set(title="PPO training in PyBullet (training reward)", xlabel="timesteps", ylabel="episode return")
+    a.set(title="PPO training in the training model (training reward)", xlabel="timesteps", ylabel="episode return")
     if state.train_curve:
         a.legend(loc="lower right")
     else:  # a run shorter than one episode
         a.text(0.5, 0.5, "no training episode finished", transform=a.transAxes, ha="center")
-    colours = {"pybullet": "tab:blue", "mujoco": "tab:red", "mujoco_corrected": "tab:green"}
-    labels = {"pybullet": "PyBullet", "mujoco": "MuJoCo", "mujoco_corrected": "MuJoCo + corrector"}
+    colours = {"sim": "tab:blue", "robot": "tab:red", "robot_corrected": "tab:green"}
+    labels = RUN_LABELS
     for run in RUNS:
         evs = [e for e in state.evaluations if run in e["returns"]]
         pts = [(e["timesteps"], np.mean(e["returns"][run]), np.std(e["returns"][run])) for e in evs]
@@ -845,8 +917,12 @@ def plot_curves(state: RunState, final: dict | None, path: Path) -> None:
 
 
 def evaluate_saved(policy_dir: str | Path, corrector_dir: str | Path | None, episodes: int, seconds: float | None,
-                   seed: int, oracle_episodes: int = 0) -> dict:
-    """``acn-ppo --eval POLICY --corrector DIR``: reload both and evaluate."""
+                   seed: int, oracle_episodes: int = 0, robot: str = "mujoco", sim: str | None = None) -> dict:
+    """``acn-ppo --eval POLICY --robot ROBOT [--corrector DIR] [--sim MODEL]``: reload and evaluate
+    (``sim``: default the model the policy was trained in)."""
     policy = WalkingPolicy.load(policy_dir)
-    corrector = load_corrector(corrector_dir, policy.env) if corrector_dir is not None else None
-    return evaluate_transfer(policy, corrector, episodes, seconds or policy.env.seconds, seed, oracle_episodes)
+    robot_model = load_model(robot)
+    sim_model = load_model(sim) if sim is not None else training_model(policy)
+    corrector = load_corrector(corrector_dir, policy.env, robot_model) if corrector_dir is not None else None
+    return evaluate_transfer(policy, corrector, episodes, seconds or policy.env.seconds, seed, oracle_episodes,
+                             robot=robot_model, sim=sim_model)

@@ -1,7 +1,9 @@
 """Gymnasium environments of the A1: ``acn/A1-PyBullet-v0`` and ``acn/A1-MuJoCo-v0``.
 
 One class (``A1Env``) over the public ``Backend`` interface, so both simulators behave the
-same way except for their physics:
+same way except for their physics. The robot is a model (``acn.sim.effects.Model``): a backend
+with physical effects written in, given as a ``Model`` or as what ``acn.sim.hidden.load_model``
+reads (``"pybullet"``, ``"mujoco"``, a model JSON file, a sealed robot with hidden effects):
 
 - observation: the documented 43-channel state ``s_t`` (``acn.sim.state``), float32;
 - action: ``u`` in [-1, 1]^12, a residual on a built-in gait (``EnvConfig.base_policy``, the
@@ -33,8 +35,10 @@ from typing import Any, Callable
 import gymnasium as gym
 import numpy as np
 
-from acn.sim.backends import BACKENDS, SimConfig, SimulationDiverged, make_backend
+from acn.sim.backends import SimConfig, SimulationDiverged, make_backend
 from acn.sim.collector import CollectConfig, InitNoise, fallen, initial_state
+from acn.sim.effects import Model
+from acn.sim.hidden import load_model
 from acn.sim.policies import POLICIES, Policy, make_policy, policy_action
 from acn.sim.reward import REWARD_WEIGHTS, reward_terms, weighted
 from acn.sim.state import ACTION_DIM, STATE_DIM
@@ -96,23 +100,26 @@ class A1Env(gym.Env):
 
     metadata = {"render_modes": []}
 
-    def __init__(self, backend: str = "pybullet", config: EnvConfig | None = None, corrector: Any = None,
+    def __init__(self, model: Model | str = "pybullet", config: EnvConfig | None = None, corrector: Any = None,
                  **overrides: Any) -> None:
-        """``overrides``: ``EnvConfig`` fields by name (e.g. ``seconds=5``) for ``gymnasium.make``."""
-        if backend not in BACKENDS:
-            raise ValueError(f"unknown simulator {backend!r}; choose from {', '.join(BACKENDS)}")
+        """``model``: the robot (module docstring); ``config.sim`` holds the control settings and
+        the model's effects are written into its physical parameters. ``overrides``: ``EnvConfig``
+        fields by name (e.g. ``seconds=5``) for ``gymnasium.make``."""
+        self.model = model if isinstance(model, Model) else load_model(model)
+        if self.model.corrector:
+            raise ValueError(f"the model carries a corrector ({self.model.corrector}); pass the loaded corrector "
+                             "as A1Env(..., corrector=...)")
         names = {f.name for f in fields(EnvConfig)}
         unknown = set(overrides) - names
         if unknown:
             raise TypeError(f"unknown EnvConfig field(s): {', '.join(sorted(unknown))}")
         self.config = replace(config or EnvConfig(), **overrides)
         self.config.validate()
-        self.backend_name = backend
         self.corrector = corrector
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, (STATE_DIM,), np.float32)
         self.action_space = gym.spaces.Box(-1.0, 1.0, (ACTION_DIM,), np.float32)
-        self._sim = make_backend(backend, self.config.sim)
-        self._init = CollectConfig(source=backend, target=None, seed=0, sim=self.config.sim,
+        self._sim = make_backend(self.model.backend, self.model.sim_config(self.config.sim))
+        self._init = CollectConfig(source=self.model.backend, target=None, seed=0, sim=self.config.sim,
                                    init_noise=self.config.init_noise)
         self._u = np.zeros(ACTION_DIM)
         self._gait = Residual(make_policy(self.config.base_policy), self.config.residual_scale, lambda s: self._u)
@@ -170,9 +177,9 @@ class A1Env(gym.Env):
 
 def register_envs() -> None:
     """Register ``ENV_IDS`` with Gymnasium (idempotent)."""
-    for backend, env_id in ENV_IDS.items():
+    for backend, env_id in ENV_IDS.items():  # the nominal simulators; any other model: A1Env(model)
         if env_id not in gym.registry:
-            gym.register(id=env_id, entry_point="acn.sim.envs:A1Env", kwargs={"backend": backend})
+            gym.register(id=env_id, entry_point="acn.sim.envs:A1Env", kwargs={"model": backend})
 
 
 register_envs()

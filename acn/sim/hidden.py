@@ -10,6 +10,11 @@ and writes the answer beside the dataset (``DIR.answer.json``), never inside it.
 
 Realistic magnitudes are each parameter's ``realistic`` range (``acn.sim.effects``); a
 ``signed`` parameter (encoder offsets, payload COM) gets a random sign, drawn per joint.
+
+A robot with hidden effects can be driven again without being shown: ``load_model`` takes the
+answer file (or the dataset it sits beside) and returns a sealed ``Model``, which every command
+that runs a robot (``acn-collect``, ``acn-fit --model``, ``acn-ppo``, ``acn-transfer``) simulates
+like any other model while its description names no effect.
 """
 
 from __future__ import annotations
@@ -21,8 +26,10 @@ import numpy as np
 
 from acn.atomic import write_file
 from acn.errors import UserError
+from acn.jsonfile import read_json
 from acn.outputs import Output, json_object
-from acn.sim.effects import CATALOGUE, EFFECT_NAMES, AppliedEffect, Effect, get_effect
+from acn.sim.backends import BACKENDS
+from acn.sim.effects import CATALOGUE, EFFECT_NAMES, AppliedEffect, Effect, Model, get_effect
 from acn.sim.state import NUM_JOINTS
 
 
@@ -65,6 +72,22 @@ def parse_hidden(spec: str, rng: np.random.Generator, control) -> AppliedEffect:
     return AppliedEffect(effect, effect.parse(raw, control))
 
 
+def draw_hidden(specs: list[str] | tuple[str, ...], seed: int, control, given: list[AppliedEffect] = ()) -> list[AppliedEffect]:
+    """``given`` effects (a source model's) and ``--hidden-effect`` arguments -> effects with values,
+    drawn from ``seed``; no effect twice."""
+    rng = np.random.default_rng([seed, 0x41])
+    out: list[AppliedEffect] = list(given)
+    for spec in specs:
+        for _ in range(100):
+            effect = parse_hidden(spec, rng, control)
+            if effect.name not in {e.name for e in out}:
+                break
+            if spec != "random":
+                raise UserError(f"--hidden-effect {effect.name} is given twice, or the source model has it already")
+        out.append(effect)
+    return out
+
+
 ANSWER_FORMAT = "acn-answer/1"
 
 
@@ -84,8 +107,40 @@ def answer_path(dataset: str | Path) -> Path:
     return d.parent / f"{d.name}.answer.json"
 
 
-def write_answer(dataset: str | Path, effects: list[AppliedEffect], seed: int) -> Path:
-    """Write the answer file whole or not at all."""
+def write_answer(dataset: str | Path, backend: str, effects: list[AppliedEffect], seed: int) -> Path:
+    """Write the answer file whole or not at all: the robot's simulator and its hidden effects."""
     return write_file(answer_path(dataset), json.dumps({"format": ANSWER_FORMAT, "dataset": str(Path(dataset).name),
-                                                        "seed": seed, "hidden_effects": [e.to_json() for e in effects]},
+                                                        "seed": seed, "backend": backend,
+                                                        "hidden_effects": [e.to_json() for e in effects]},
                                                        indent=2) + "\n")
+
+
+def sealed_robot(answer: str | Path, backend: str | None = None) -> Model:
+    """The robot an answer file describes, sealed (its effects are simulated, never shown).
+    ``backend``: the robot's simulator where the answer does not name it."""
+    path = Path(answer)
+    d = read_json(path, f"answer file {path} does not exist")
+    if not _is_answer(path):
+        raise UserError(f"{path} is not a hidden-effect answer (format {ANSWER_FORMAT!r} expected)")
+    backend = d.get("backend", backend)
+    if backend is None:
+        raise UserError(f"{path} does not name its robot's simulator; collect the dataset again")
+    model = Model.from_json({"backend": backend, "effects": d.get("hidden_effects", [])}, where=str(path))
+    return Model(model.backend, model.effects, sealed=True)
+
+
+def load_model(spec: str | Path) -> Model:
+    """A model from the command line: a backend (nominal), a model JSON file, or a robot with
+    hidden effects, sealed (its answer file, or the dataset directory the answer sits beside)."""
+    text = str(spec)
+    if text in BACKENDS:
+        return Model(backend=text)
+    path = Path(spec)
+    if path.is_dir():
+        if not answer_path(path).is_file():
+            raise UserError(f"{path} is a directory without a hidden-effect answer beside it ({answer_path(path)}); "
+                            f"a model is {', '.join(BACKENDS)}, a model JSON file or a hidden-effect dataset")
+        return sealed_robot(answer_path(path))
+    if path.is_file() and _is_answer(path):
+        return sealed_robot(path)
+    return Model.parse(spec)

@@ -38,6 +38,9 @@ class Model:
     backend: str = "mujoco"
     effects: list[AppliedEffect] = field(default_factory=list)
     corrector: str | None = None  # directory of a frozen corrector applied to the model's actions
+    # A sealed model (a robot with hidden effects, ``acn.sim.hidden.load_model``) is simulated like any
+    # other, but never shows or writes its effects: ``describe`` names none and ``to_json`` refuses.
+    sealed: bool = False
 
     def params(self, base: ModelParams | None = None) -> ModelParams:
         """``base`` (default nominal) with every effect written in, in order."""
@@ -53,9 +56,11 @@ class Model:
     def with_effect(self, effect: Effect, values: Values) -> "Model":
         """A new model with ``effect`` added (replacing an earlier one of the same name)."""
         kept = [t for t in self.effects if t.name != effect.name]
-        return Model(self.backend, [*kept, AppliedEffect(effect, dict(values))], self.corrector)
+        return Model(self.backend, [*kept, AppliedEffect(effect, dict(values))], self.corrector, self.sealed)
 
     def describe(self) -> str:
+        if self.sealed:
+            return f"{self.backend} + sealed effects"
         parts = [self.backend]
         for t in self.effects:
             vals = ", ".join(f"{k}={_short(v)}" for k, v in t.effect.to_json(t.values).items())
@@ -64,6 +69,8 @@ class Model:
 
     # ----- JSON -----------------------------------------------------------------------------
     def to_json(self) -> dict:
+        if self.sealed:
+            raise UserError("a sealed robot's effects are not written out; give the robot itself (its answer file)")
         return {"format": FORMAT, "backend": self.backend, "effects": [t.to_json() for t in self.effects],
                 "corrector": self.corrector}
 
