@@ -985,6 +985,8 @@ def transfer_main(argv: list[str] | None = None) -> int:
         print(result["table_text"])
         print()
         print(result["table"]["verdict"])
+        for line in result["table"]["by_term"]:
+            print(f"  {line}")
         print(f"M, the physics the diagnosis identified: {result['model']['described']}")
         print("stages: " + ", ".join(f"{k} {v / 60:.1f} min" for k, v in result["stages_seconds"].items())
               + f"; total {(time.perf_counter() - t0) / 60:.1f} min")

@@ -230,7 +230,7 @@ def test_plain_ppo_in_one_model_evaluated_on_a_sealed_robot(tmp_path, capsys):
     assert "robot_corrected" not in fin["returns"] and m["corrector_frozen"] is None and not m["correctors"]
     assert fin["returns"]["robot"] != fin["returns"]["sim"]
     assert json.loads((run / "policy" / "config.json").read_text())["training"]["model"] == "mujoco"
-    assert ppo_main(["--eval", str(run / "policy"), "--robot", str(tmp_path / "robot"), "--episodes", "2",
+    assert ppo_main(["--eval", str(run / "policy"), "--robot", str(answer), "--episodes", "2",
                      "--seconds", "0.3", "--out", str(tmp_path / "eval.json")]) == 0
     ev = json.loads((tmp_path / "eval.json").read_text())
     assert ev["models"]["robot"] == "mujoco + sealed effects" and len(ev["training_returns"]["robot"]) == 2

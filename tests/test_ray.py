@@ -217,3 +217,17 @@ def test_ray_argument_mistakes_are_one_line_errors(capsys, tmp_path, args, messa
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and message in err, err
     assert not list(tmp_path.iterdir())
+
+
+def test_the_transfer_studys_independent_steps_run_as_ray_tasks_in_order(ray_address, tmp_path):
+    """acn-transfer --ray: each group of steps is one Ray task running the toolkit's commands; the
+    results and logs come back in the groups' order."""
+    from acn.transfer.study import Step, on_ray
+
+    groups = [[Step("first", "acn-diagnose", ["--list-effects"])],
+              [Step("second", "acn-diagnose", ["--list-effects"]), Step("third", "acn-ppo", ["--help"])]]
+    results = on_ray(groups, tmp_path, RAY, envs=1)
+    assert [r.name for r in results] == ["first", "second", "third"] and all(r.seconds > 0 for r in results)
+    log = (tmp_path / "logs" / "second.log").read_text()
+    assert log.startswith("$ acn-diagnose --list-effects") and "joint_damping" in log
+    assert "--train" in (tmp_path / "logs" / "third.log").read_text()

@@ -20,6 +20,9 @@ TINY = ["--timesteps", "256", "--episodes", "2", "--seconds", "0.6", "--measure-
         "--fit-epochs", "2", "--fit-rounds", "0", "--effects", "joint_damping", "--envs", "1"]
 
 
+# Thirteen commands, each a new process whose imports (torch, lerobot, the simulators) take seconds:
+# about 3 minutes on 2 idle cores, more beside other tests.
+@pytest.mark.timeout(900)
 def test_the_whole_study_runs_on_tiny_sizes_and_never_prints_the_sealed_robot(tmp_path, capsys):
     out = tmp_path / "study"
     rc = transfer_main(["--robot", "mujoco", "--sim", "mujoco", "--hidden-effect", "joint_damping:value=0.61234",
@@ -31,6 +34,9 @@ def test_the_whole_study_runs_on_tiny_sizes_and_never_prints_the_sealed_robot(tm
     assert [r["route"] for r in rows] == [r.key for r in ROUTES]
     assert all(r["episodes"] == 2 and np.isfinite(r["on_robot"]["mean"]) for r in rows)
     assert [r["share_closed"] is None for r in rows] == [True, False, False, False, True]
+    for r in rows:  # the terms of the training reward add up to the return: the table can say which term moved
+        assert sum(r["terms_on_robot"].values()) == pytest.approx(r["on_robot"]["mean"], rel=1e-6, abs=1e-6)
+    assert len(study["table"]["by_term"]) == 4
     assert study["table"]["verdict"] in printed.out and "pi_M + F_M" in printed.out
     assert [s.split(".")[0] for s in study["stages_seconds"]] == ["1", "2", "3", "4", "5"]
     for path in ("physics/model.json", "physics/diagnosis.json", "correctors/F/model.safetensors",

@@ -80,7 +80,7 @@ from acn.sim.effects import Model
 from acn.sim.envs import A1Env, EnvConfig
 from acn.sim.hidden import load_model
 from acn.sim.policies import POLICIES
-from acn.sim.reward import REWARD_WEIGHTS, weighted
+from acn.sim.reward import REWARD_WEIGHTS, TERM_NAMES, weighted
 from acn.sim.state import STATE_NAMES
 
 RUN_MANIFEST, RUN_FORMAT, EVAL_FORMAT = "run.json", "acn-ppo-run/1", "acn-ppo-eval/1"
@@ -337,6 +337,7 @@ class EpisodeResult:
     training: np.ndarray
     end: str
     forward_speed: float  # mean v_x over the episode, m/s
+    terms: np.ndarray     # (4,) the episode's sums of the reward terms (``TERM_NAMES``), unweighted
 
 
 def _episode(env: A1Env, policy: WalkingPolicy, s0: np.ndarray, training: EnvConfig) -> EpisodeResult:
@@ -344,16 +345,17 @@ def _episode(env: A1Env, policy: WalkingPolicy, s0: np.ndarray, training: EnvCon
     weights and alive bonus."""
     obs, _ = env.reset(options={"state": s0})
     policy.reset(np.random.default_rng(0))
-    paper, trained, speed = [], [], []
+    paper, trained, speed, terms = [], [], [], np.zeros(len(TERM_NAMES))
     while True:
         obs, _, terminated, truncated, info = env.step(policy.residual(obs))
+        terms += info["reward_terms"]
         paper.append(info["paper_reward"])
         bonus = 0.0 if info["fallen"] else training.alive_bonus  # the training environment's reward, A1Env.step
         trained.append(0.0 if info["diverged"] else float(weighted(info["reward_terms"], training.reward_weights)) + bonus)
         speed.append(info["reward_terms"][0])
         if terminated or truncated:
             end = "diverged" if info["diverged"] else ("fell" if info["fallen"] else "time_limit")
-            return EpisodeResult(np.array(paper), np.array(trained), end, float(np.mean(speed)))
+            return EpisodeResult(np.array(paper), np.array(trained), end, float(np.mean(speed)), terms)
 
 
 def same_state_oracle_rewards(policy: WalkingPolicy, env: EnvConfig, corrector: Corrector | None,
@@ -406,7 +408,7 @@ def training_model(policy: WalkingPolicy) -> Model:
     try:
         return load_model(spec)
     except UserError as e:
-        raise UserError(f"the policy's training model cannot be loaded ({e}); give it with --sim") from None
+        raise UserError(f"the policy's training model cannot be loaded ({e}); give it with --train MODEL") from None
 
 
 def _evaluate_transfer(policy: WalkingPolicy, corrector: Corrector | None, episodes: int, seconds: float, seed: int,
@@ -418,7 +420,9 @@ def _evaluate_transfer(policy: WalkingPolicy, corrector: Corrector | None, episo
     out: dict = {"episodes": episodes, "seconds": seconds, "seed": init.seed, "corrected": corrector is not None,
                  "models": {"sim": sim.describe(), "robot": robot.describe()},
                  "returns": {}, "training_returns": {}, "ends": {}, "forward_speed": {}, "episode_ends": {},
-                 "episode_forward_speed": {}}
+                 "episode_forward_speed": {}, "episode_steps": {}, "reward_term_names": list(TERM_NAMES),
+                 "episode_reward_terms": {},
+                 "training_reward": {"weights": list(policy.env.reward_weights), "alive_bonus": policy.env.alive_bonus}}
     for run in RUNS:
         if run == "robot_corrected" and corrector is None:
             continue
@@ -433,6 +437,8 @@ def _evaluate_transfer(policy: WalkingPolicy, corrector: Corrector | None, episo
         out["ends"][run] = {e: sum(1 for r in results if r.end == e) for e in END_KINDS}
         out["episode_ends"][run] = [r.end for r in results]
         out["episode_forward_speed"][run] = [r.forward_speed for r in results]
+        out["episode_steps"][run] = [len(r.paper) for r in results]
+        out["episode_reward_terms"][run] = [r.terms.tolist() for r in results]  # sums over the episode, unweighted
         out["forward_speed"][run] = float(np.mean(out["episode_forward_speed"][run]))
     R = {k: np.array(v) for k, v in out["returns"].items()}
 
@@ -709,6 +715,9 @@ class Trainer:
         save_policy(self.current_policy(), self.out / "policy")
         self.state.last_checkpoint = self.state.timesteps
         self.state.wall["checkpoint"] += time.perf_counter() - t0
+        recent = [r for _, _, r, _ in self.state.train_curve[-20:]]
+        self.log(f"checkpoint at {self.state.timesteps} steps, episode {self.state.episodes}"
+                 + (f": mean training return of the last {len(recent)} episodes {np.mean(recent):.1f}" if recent else ""))
 
     def at_rollout_end(self) -> None:
         """Algorithm 2's schedule, checked whenever the policy is fixed (between PPO updates)."""

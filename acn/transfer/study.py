@@ -238,7 +238,7 @@ def run_study(cfg: TransferConfig, out: Path, ray=None, say: Callable[[str], Non
         for s in (s for g in groups for s in g):
             say(f"  {s.command()}")
         if ray is not None and len(groups) > 1:
-            results = _on_ray(groups, out, ray, cfg.envs)
+            results = on_ray(groups, out, ray, cfg.envs)
         else:
             results = [r for g in groups for r in run_steps(g, str(out))]
         for r in results:
@@ -268,7 +268,7 @@ def run_study(cfg: TransferConfig, out: Path, ray=None, say: Callable[[str], Non
     return result
 
 
-def _on_ray(groups: list[list[Step]], out: Path, ray_config, envs: int) -> list[StepResult]:
+def on_ray(groups: list[list[Step]], out: Path, ray_config, envs: int) -> list[StepResult]:
     """Each group of steps as one Ray task (a training takes ``envs`` + 1 CPUs where the cluster has
     them); the results in the groups' order. ``out`` must be on a filesystem every node sees."""
     from acn.sim.parallel import ray_session

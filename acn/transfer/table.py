@@ -93,6 +93,9 @@ class RouteRow:
     episodes: int
     paper_on_robot: Estimate  # the paper's reward on the robot
     share_closed: Estimate | None = None  # of the pi_sim -> pi_robot gap on the robot
+    # what each term of the training reward adds to the return on the robot (mean over episodes):
+    # which term a route gains or loses in
+    terms_on_robot: dict[str, float] | None = None
 
 
 @dataclass
@@ -124,7 +127,8 @@ class TransferTable:
                 transfer_gap=Estimate.of(returns[r.key] - own),
                 forward_speed=Estimate.of(ev["episode_forward_speed"][r.run]),
                 falls=sum(e != "time_limit" for e in ends), episodes=len(ends),
-                paper_on_robot=Estimate.of(ev["returns"][r.run]), share_closed=share))
+                paper_on_robot=Estimate.of(ev["returns"][r.run]), share_closed=share,
+                terms_on_robot=term_contributions(ev, r.run)))
         gap = Estimate.of(returns[BOUND] - returns[BASE])
         return cls(rows, gap, verdict(rows, gap))
 
@@ -157,11 +161,38 @@ class TransferTable:
         widths = [max(len(r[i]) for r in rows) for i in range(len(self.HEADER))]
         return "\n".join("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows)
 
+    def by_term(self) -> list[str]:
+        """For each route against pi_sim on the robot: where its return differs, term by term
+        (largest first), which says why a route helps or does not."""
+        base = self.row(BASE).terms_on_robot
+        lines = []
+        for r in self.rows:
+            if r.route == BASE or r.terms_on_robot is None or base is None:
+                continue
+            diff = sorted(((k, r.terms_on_robot[k] - base[k]) for k in base), key=lambda kv: -abs(kv[1]))
+            lines.append(f"{r.route} - pi_sim on the robot, by term: " + ", ".join(f"{k} {v:+.1f}" for k, v in diff))
+        return lines
+
     def to_json(self) -> dict:
         return {"rows": [asdict(r) for r in self.rows], "gap": asdict(self.gap), "verdict": self.verdict,
+                "by_term": self.by_term(),
                 "return": "the training reward (PPO's weights of the paper's four terms and the alive bonus) per "
                           "episode; paper_on_robot: the paper's reward",
                 "share_closed": "(R_route - R_pi_sim) / (R_pi_robot - R_pi_sim) on the robot, same starts"}
+
+
+def term_contributions(evaluation: dict, run: str) -> dict[str, float] | None:
+    """Mean over episodes of each weighted term of the training reward, and the alive bonus, on
+    ``run`` (they add up to the return); None for an evaluation that does not record them."""
+    if "episode_reward_terms" not in evaluation or "training_reward" not in evaluation:
+        return None
+    terms = np.asarray(evaluation["episode_reward_terms"][run], dtype=float)   # (episodes, 4), unweighted sums
+    w = np.asarray(evaluation["training_reward"]["weights"], dtype=float) * np.array([1.0, -1.0, -1.0, -1.0])
+    out = dict(zip(evaluation["reward_term_names"], (terms * w).mean(axis=0).tolist()))
+    alive = [steps - (end != "time_limit") for steps, end in zip(evaluation["episode_steps"][run],
+                                                           evaluation["episode_ends"][run])]
+    out["alive_bonus"] = float(evaluation["training_reward"]["alive_bonus"] * np.mean(alive))
+    return out
 
 
 def verdict(rows: list[RouteRow], gap: Estimate) -> str:
