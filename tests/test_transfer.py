@@ -75,7 +75,7 @@ def test_the_table_measures_each_route_against_the_gap_from_pi_sim_to_pi_robot()
     half = base + 10 + rng.normal(0, 1, n)      # pi_M: half the gap
     table = TransferTable.from_evaluations({
         "sim": _evaluation({"sim": list(base + 30), "robot": list(base), "robot_corrected": list(base + 0.1)}),
-        "model": _evaluation({"sim": list(half + 5), "robot": list(half), "robot_corrected": list(half - 1)}),
+        "model": _evaluation({"sim": list(half + 5), "robot": list(half), "robot_corrected": list(half - 5)}),
         "robot": _evaluation({"sim": list(bound), "robot": list(bound)},
                              {"sim": ["time_limit"] * n, "robot": ["fell"] + ["time_limit"] * (n - 1)}),
     })
@@ -83,6 +83,14 @@ def test_the_table_measures_each_route_against_the_gap_from_pi_sim_to_pi_robot()
     assert table.row("pi_sim").transfer_gap.mean == pytest.approx(-30)
     assert table.row("pi_robot").falls == 1 and table.gap.mean == pytest.approx(20, abs=0.5)
     assert table.verdict.startswith("pi_M closes the most") and "train in the model the diagnosis identified" in table.verdict
+    # a corrector that adds nothing measurable on top: both named, the simpler one advised
+    tied = TransferTable.from_evaluations({
+        "sim": _evaluation({"sim": list(base + 30), "robot": list(base), "robot_corrected": list(base + 0.1)}),
+        "model": _evaluation({"sim": list(half + 5), "robot": list(half), "robot_corrected": list(half + 0.1)}),
+        "robot": _evaluation({"sim": list(bound), "robot": list(bound)}),
+    })
+    assert tied.verdict.startswith("pi_M and pi_M + F_M close about as much")
+    assert tied.verdict.endswith("train in the model the diagnosis identified.")
     # the ratio's standard error: from the per-episode scatter of the differences
     s = share_closed(half, base, bound)
     assert 0 < s.se < 0.05

@@ -1,6 +1,6 @@
 """The study's picture: each route's return on the robot and in its training model (mean and
-standard error), pi_sim and pi_robot as the two lines every route sits between, falls and the
-share of the gap closed written beside each bar."""
+standard error), pi_sim and pi_robot as the two lines every route sits between, the share of the
+gap closed and the falls under each route's name, and how fast each walks on the robot."""
 
 from __future__ import annotations
 
@@ -27,21 +27,19 @@ def plot_study(table: TransferTable, path: Path, title: str) -> Path:
     for name, style in ((BASE, ":"), (BOUND, "--")):
         a.axhline(table.row(name).on_robot.mean, color="tab:red", linestyle=style, linewidth=1,
                   label=f"{name} on the robot")
-    for i, r in enumerate(rows):
-        note = f"{r.falls}/{r.episodes} fell"
-        if r.share_closed is not None:
-            note = f"{r.share_closed.text(0, 100, ' %')}\n" + note
-        a.annotate(note, (i - 0.2, r.on_robot.mean), textcoords="offset points", xytext=(0, 8), ha="center",
-                   fontsize=7)
-    a.set_xticks(list(x), [r.route for r in rows])
+    labels = []
+    for r in rows:  # the falls and the share closed under each route's name
+        share = "" if r.share_closed is None else f"\n{r.share_closed.text(0, 100, ' %')} of the gap"
+        labels.append(f"{r.route}{share}\n{r.falls}/{r.episodes} fell")
+    a.set_xticks(list(x), labels, fontsize=8)
     a.set(ylabel="episode return (training reward)", title=title)
-    a.legend(fontsize=7, loc="lower right")
+    a.legend(fontsize=7, loc="best")
     b.bar(list(x), [r.forward_speed.mean for r in rows], yerr=[r.forward_speed.se for r in rows], capsize=3,
           color="tab:blue")
     b.set_xticks(list(x), [r.route for r in rows])
     b.set(ylabel="forward speed on the robot, m/s", title="how fast each walks on the robot")
     fig.suptitle(table.verdict, fontsize=8, wrap=True)
-    fig.tight_layout(rect=(0, 0, 1, 0.9))
+    fig.tight_layout(rect=(0, 0, 1, 0.93))
     with replacing(path) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)

@@ -211,7 +211,14 @@ def verdict(rows: list[RouteRow], gap: Estimate) -> str:
     if not helped:
         return (f"No route measurably closes the gap from pi_sim to pi_robot on the robot (return {gap.text()}; "
                 f"share closed: {parts}).")
-    best = max(helped, key=lambda r: r.share_closed.mean)
-    falls = f"; it falls {best.falls}/{best.episodes} times on the robot, pi_robot {by[BOUND].falls}/{by[BOUND].episodes}"
-    return (f"{best.route} closes the most of the gap from pi_sim to pi_robot (return {gap.text()}; share closed: "
-            f"{parts}){falls}: {advice[best.route]}.")
+    top = max(helped, key=lambda r: r.share_closed.mean)
+    # the routes within two standard errors of the best close as much; the simplest of them (the
+    # first in ROUTES: no corrector before one) is the advice
+    tied = [r for r in helped if top.share_closed.mean - r.share_closed.mean
+            <= 2 * math.hypot(top.share_closed.se, r.share_closed.se)]
+    best = tied[0]
+    who = (f"{best.route} closes the most" if len(tied) == 1 else
+           f"{' and '.join(r.route for r in tied)} close about as much, the most,")
+    falls = f"; {best.route} falls {best.falls}/{best.episodes} times on the robot, pi_robot {by[BOUND].falls}/{by[BOUND].episodes}"
+    return (f"{who} of the gap from pi_sim to pi_robot (return {gap.text()}; share closed: {parts}){falls}: "
+            f"{advice[best.route]}.")
