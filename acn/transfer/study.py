@@ -178,11 +178,13 @@ class Plan:
             return Step(f"collect_{name}", "acn-collect", ["--source", source, "--target", self.robot, "--policy", policy,
                                                            *collect, "--out", str(o / "measurements" / name)])
 
+        # A training's own final evaluation is a 2-episode check without the oracle bound: the
+        # evaluation stage is the study's judgement.
         def train(name: str, model: str) -> Step:
             return Step(f"train_{name}", "acn-ppo", [
                 "--train", model, "--robot", self.robot, "--timesteps", str(c.timesteps), "--seconds", f"{c.seconds:g}",
                 "--eval-seconds", f"{c.seconds:g}", "--refit-every", "0", "--eval-every", "0",
-                "--final-eval-episodes", "2", "--envs", str(c.envs), "--seed", str(c.seed),
+                "--final-eval-episodes", "2", "--oracle-episodes", "0", "--envs", str(c.envs), "--seed", str(c.seed),
                 "--out", str(o / "policies" / name)])
 
         def evaluate(name: str, corrector: Path | None) -> Step:
