@@ -20,8 +20,8 @@ def test_help():
 
 @pytest.mark.parametrize("args, message", [
     (["--policy", "moonwalk"], "invalid choice"),
-    (["--source", "gazebo"], "invalid choice"),
-    (["--target", "isaac"], "invalid choice"),
+    (["--source", "gazebo"], "neither a backend"),
+    (["--target", "isaac"], "neither a backend"),
     (["--episodes", "0"], ">= 1"),
     (["--episodes", "two"], "whole number"),
     (["--seconds", "nan"], "finite number"),
