@@ -86,7 +86,7 @@ results: $(STAMP)
 # The transfer study in its two settings (README, "Which policy walks on the robot"): the paper's
 # (trained in PyBullet, deployed on MuJoCo) and sim-to-real with a hidden effect (trained in nominal
 # MuJoCo, deployed on MuJoCo with a sealed actuator latency and joint damping). Each at the default
-# sizes, at most 90 minutes on 2 cores; the stage times are printed.
+# sizes; the stage times are printed (71 and 114 minutes when the two ran side by side on 2 cores).
 transfer: $(STAMP)
 	@mkdir -p $(OUT)
 	$(BIN)/acn-transfer --sim pybullet --robot mujoco --out $(OUT)/transfer_paper --overwrite
