@@ -12,7 +12,6 @@ import json
 import os
 import shlex
 import sys
-import time
 from pathlib import Path
 from typing import Callable, Iterator, NoReturn
 
@@ -917,7 +916,7 @@ def _transfer_flags() -> dict[str, Flag]:
                     _model_spec, metavar="MODEL"),
         "hidden_effects": Flag("make the robot: --robot mujoco with this effect, sealed in OUT/robot.answer.json and "
                                "never printed (acn-collect's syntax: NAME, NAME:param=value,... or random); repeat for "
-                               "several", _hidden_spec, option="--hidden-effect", metavar="EFFECT"),
+                               "several", option="--hidden-effect", metavar="EFFECT"),
         "timesteps": Flag("PPO control steps per policy (pi_sim, pi_M, pi_robot alike)", positive_int),
         "episodes": Flag("evaluation episodes per policy, the same held-out starts for all", positive_int),
         "seconds": Flag("episode length of training and evaluation, s", seconds),
@@ -931,19 +930,9 @@ def _transfer_flags() -> dict[str, Flag]:
                        "of the time of the full search; joint: the full search)", metavar="GRANULARITY"),
         "auto_alternatives": Flag("acn-diagnose --auto-alternatives: other chains of effects to try", nonneg_int),
         "fit_epochs": Flag("acn-fit --epochs for the correctors (0: acn-fit's default)", nonneg_int),
-        "fit_rounds": Flag("acn-fit --rounds for the correctors (-1: acn-fit's default)", _rounds),
+        "fit_rounds": Flag("acn-fit --rounds for the correctors (-1: acn-fit's default)",
+                           number(int, -1, inclusive=True)),
     }
-
-
-def _hidden_spec(text: str) -> tuple[str, ...]:
-    return (text,)
-
-
-def _rounds(text: str) -> int:
-    value = int(text) if text.lstrip("-").isdigit() else None
-    if value is None or value < -1:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= -1, got {text!r:.40}")
-    return value
 
 
 def transfer_parser() -> argparse.ArgumentParser:
@@ -978,7 +967,6 @@ def transfer_main(argv: list[str] | None = None) -> int:
         cfg.validate()
         ray = _ray_config(args)
         remove_partial(args.out)
-        t0 = time.perf_counter()
         result = run_study(cfg, args.out, ray=ray)
         out = args.out.absolute()
         print()
@@ -989,7 +977,7 @@ def transfer_main(argv: list[str] | None = None) -> int:
             print(f"  {line}")
         print(f"M, the physics the diagnosis identified: {result['model']['described']}")
         print("stages: " + ", ".join(f"{k} {v / 60:.1f} min" for k, v in result["stages_seconds"].items())
-              + f"; total {(time.perf_counter() - t0) / 60:.1f} min")
+              + f"; total {result['seconds'] / 60:.1f} min")
         print(f"wrote {out / 'transfer.json'}, {out / 'transfer.png'}; every command's output is in {out / 'logs'}")
         return 0
 

@@ -140,7 +140,8 @@ def load_data(paths: list[str | Path], cfg: FitConfig, target, log: Log) -> FitD
     effects = _target_effects(target, cfg.variant, target_sim)
     if effects:
         log(f"target: {target.describe()} (the network learns what these effects leave)")
-    collect = config_from_metadata(paired.info, target_effects=effects, hidden_effects=_source_effects(paths, paired.info.source.simulator))
+    collect = config_from_metadata(paired.info, target_effects=effects,
+                                   hidden_effects=_source_effects(paths, paired.info.source.simulator))
     return FitData(paired, collect, effects)
 
 

@@ -72,7 +72,8 @@ def parse_hidden(spec: str, rng: np.random.Generator, control) -> AppliedEffect:
     return AppliedEffect(effect, effect.parse(raw, control))
 
 
-def draw_hidden(specs: list[str] | tuple[str, ...], seed: int, control, given: list[AppliedEffect] = ()) -> list[AppliedEffect]:
+def draw_hidden(specs: list[str] | tuple[str, ...], seed: int, control,
+                given: list[AppliedEffect] = ()) -> list[AppliedEffect]:
     """``given`` effects (a source model's) and ``--hidden-effect`` arguments -> effects with values,
     drawn from ``seed``; no effect twice."""
     rng = np.random.default_rng([seed, 0x41])
