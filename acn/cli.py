@@ -1,7 +1,8 @@
 """Command-line entry points (installed as ``acn-*`` console scripts).
 
-Every command prints a one-line error and exits with status 2 on bad input; an interrupted
-command exits with 130. Library code raises; only this module prints and exits.
+Every command prints a one-line error and exits with status 2 on bad input (an output another
+run is writing included), with 1 where writing failed (a full disk, a read-only file system, a
+permission), and with 130 when interrupted (Ctrl-C or SIGTERM). Library code raises; only this module prints and exits.
 """
 
 from __future__ import annotations
@@ -9,18 +10,21 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import logging
 import os
 import shlex
+import signal
 import sys
+import threading
 from pathlib import Path
 from typing import Callable, Iterator, NoReturn
 
 from acn.errors import UserError
 from acn.flags import (Flag, add_flags, comma_list, config_from_args, given, given_fields, nonneg_float, nonneg_int, number, positive_float,
                        positive_int, seconds)
-from acn.outputs import check_input_dir, check_output
+from acn.outputs.checks import check_input_dir, check_output
 
-EXIT_USAGE, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 2, 130, 141  # 141: 128 + SIGPIPE
+EXIT_USAGE, EXIT_WRITE, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 2, 1, 130, 141  # 141: 128 + SIGPIPE
 
 
 class _Help(argparse.HelpFormatter):
@@ -45,17 +49,56 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _run(prog: str, body: Callable[[], int | None]) -> int:
+    """Run a command's ``body``: SIGTERM stops it as Ctrl-C does, the locks it took on its outputs
+    are given back however it ends, and every failure a user can act on is one line."""
+    from acn.lifetime import end_with_runner_from_environment
+    from acn.outputs.lock import release_all, set_program
+    from acn.outputs.writing import WriteFailed, write_errno
+
+    set_program(prog)
+    end_with_runner_from_environment()
+    said = _say_library_warnings(prog)
+    previous = signal.signal(signal.SIGTERM, _interrupt) if threading.current_thread() is threading.main_thread() \
+        else None
     try:
         return body() or 0
     except (UserError, ValueError, FileExistsError, FileNotFoundError) as e:
         print(f"{prog}: error: {e}", file=sys.stderr)
         return EXIT_USAGE
+    except WriteFailed as e:
+        print(f"{prog}: error: {e}", file=sys.stderr)
+        return EXIT_WRITE
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
     except BrokenPipeError:  # the reader of the output went away (`| head`): stop quietly, as a shell tool does
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error when Python flushes it
         return EXIT_BROKEN_PIPE
+    except OSError as e:  # a write outside any output (a temporary file, a log): still one line
+        if write_errno(e) is None:
+            raise
+        print(f"{prog}: error: {e}", file=sys.stderr)
+        return EXIT_WRITE
+    finally:
+        release_all()
+        logging.getLogger("acn").removeHandler(said)
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _interrupt(signum, frame) -> NoReturn:
+    raise KeyboardInterrupt
+
+
+def _say_library_warnings(prog: str) -> logging.Handler:
+    """The library's warnings (``logging``, e.g. the leftovers of dead runs it removed) as
+    ``PROG: message`` lines on stderr."""
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter(f"{prog}: %(message)s"))
+    handler.setLevel(logging.WARNING)
+    logger = logging.getLogger("acn")
+    logger.addHandler(handler)
+    return handler
 
 
 def _out_path(text: str) -> Path:
@@ -960,14 +1003,13 @@ def transfer_main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         from acn.transfer import TransferConfig, run_study
-        from acn.transfer.study import TRANSFER_STUDY, remove_partial
+        from acn.transfer.study import TRANSFER_STUDY
 
         cfg = config_from_args(args, TransferConfig(), _transfer_flags(), hidden_effects=tuple(args.hidden_effect))
         check_output(args.out, TRANSFER_STUDY, overwrite=args.overwrite, inputs=[args.robot, args.sim])
         cfg.validate()
         ray = _ray_config(args)
-        remove_partial(args.out)
-        result = run_study(cfg, args.out, ray=ray)
+        result = run_study(cfg, args.out, ray=ray, overwrite=args.overwrite)
         out = args.out.absolute()
         print()
         print(result["table_text"])

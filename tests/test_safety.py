@@ -19,7 +19,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from acn.atomic import write_file
+from acn.outputs.writing import write_file
 from acn.datasets.reader import load_frames
 from acn.sim.state import ACTION_NAMES, STATE_NAMES
 

@@ -22,7 +22,7 @@ from torch import nn
 from acn.corrector.acn import LEARNED_JACOBIAN, ActionCorrectionNetwork
 from acn.corrector.card import FORMAT, CorrectorCard, TargetDescription
 from acn.errors import UserError
-from acn.outputs import Output, json_with_format
+from acn.outputs.kinds import Output, json_with_format
 from acn.sim.state import ACTION_DIM, STATE_DIM, STATE_NAMES
 from acn.weights import CONFIG, WEIGHTS, corrupt_weights, read_config, save_weights
 

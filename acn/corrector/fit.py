@@ -44,7 +44,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import shutil
 import time
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, replace
@@ -54,7 +53,6 @@ from typing import Callable, Iterator
 import numpy as np
 import torch
 
-from acn.atomic import move_into_place, temporary_beside
 from acn.corrector.acn import LABELLED, OUTPUT_CHANNELS
 from acn.corrector.card import CorrectorCard, TrainingData
 from acn.corrector.config import FitConfig
@@ -68,7 +66,7 @@ from acn.datasets.metadata import Simulator, config_from_metadata
 from acn.datasets.reader import PairedTransitions, load_paired, percentile_filter
 from acn.errors import UserError
 from acn.jsonfile import strict_json
-from acn.outputs import refuse_foreign
+from acn.outputs.writing import Writing
 from acn.sim.collector import CollectConfig
 from acn.sim.policies import POLICIES
 from acn.sim.resim import Resimulator
@@ -436,16 +434,9 @@ def _summary(m: dict) -> dict:
 
 
 def save(model: Corrector, metrics: dict, out: str | Path, overwrite: bool = False) -> Path:
-    """Write the model directory atomically (hidden temp dir, then rename)."""
-    out = Path(out).absolute()
-    refuse_foreign(out, CORRECTOR, overwrite)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = temporary_beside(out)
-    tmp.mkdir()
-    try:
-        model.save(tmp)
-        (tmp / "metrics.json").write_text(json.dumps(strict_json(metrics), indent=2, allow_nan=False))
-        return move_into_place(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+    """Write the corrector directory whole or not at all (``acn.outputs.writing.Writing``)."""
+    with Writing(out, CORRECTOR, overwrite) as output:
+        output.path.mkdir()
+        model.save(output.path)
+        (output.path / "metrics.json").write_text(json.dumps(strict_json(metrics), indent=2, allow_nan=False))
+    return output.out

@@ -19,6 +19,7 @@ stays as it was, since only a complete collection replaces it. The writer loop t
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 import queue
 import signal
 from pathlib import Path
@@ -27,6 +28,7 @@ from typing import TYPE_CHECKING, Callable, Iterator, Sequence
 from acn.datasets.shards import record_shards
 from acn.datasets.stream import write_stream
 from acn.errors import UserError
+from acn.lifetime import end_with
 from acn.sim.collector import CollectConfig, Episode, LoadCorrector, rollout_for
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -38,9 +40,12 @@ _CTX.set_forkserver_preload(["acn.sim.collector", "acn.sim.backends.pybullet_bac
                              "acn.sim.backends.mujoco_backend"])
 
 
-def _simulate(cfg: CollectConfig, indices: list[int], results, load_corrector: LoadCorrector | None) -> None:
-    """Child process: run ``indices`` with one set of simulators, send each episode back."""
+def _simulate(cfg: CollectConfig, indices: list[int], results, load_corrector: LoadCorrector | None,
+              run: int) -> None:
+    """Child process: run ``indices`` with one set of simulators, send each episode back; ends
+    when the collection's process ``run`` ends, however it ends."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides what an interrupt does
+    end_with(run)
     try:
         rollout = rollout_for(cfg, load_corrector)
         for i in indices:
@@ -54,7 +59,7 @@ def _episodes_in_order(cfg: CollectConfig, indices: Sequence[int], workers: int,
                        load_corrector: LoadCorrector | None) -> Iterator[Episode]:
     results = _CTX.Queue()
     for w in range(workers):
-        p = _CTX.Process(target=_simulate, args=(cfg, list(indices[w::workers]), results, load_corrector),
+        p = _CTX.Process(target=_simulate, args=(cfg, list(indices[w::workers]), results, load_corrector, os.getpid()),
                          daemon=True)
         p.start()
         procs.append(p)

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from acn.outputs import Output, json_object
+from acn.outputs.kinds import Output, json_object
 from acn.sim.state import ACTION_DIM, ACTION_NAMES, HYBRID_NAMES, STATE_DIM, STATE_NAMES
 
 ACN_KEY = "acn"

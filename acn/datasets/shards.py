@@ -5,7 +5,8 @@ Ray task pinned to the driver's node (the shards and ``out`` share its disk; the
 part that needs it), which runs the writer loop (``acn.datasets.stream.write_stream``) for its
 range: its episodes are simulated as Ray tasks anywhere in the cluster and written in order by
 the shard's own writer. Then ``lerobot.datasets.aggregate.aggregate_datasets`` merges the
-shards, in order, into a hidden directory beside ``out`` that is renamed into place, and the
+shards, in order, into a hidden directory beside ``out`` that is moved into place whole
+(``acn.outputs.writing.Writing``, claimed before the first shard starts), and the
 ``acn`` block of ``meta/info.json`` (the collection's metadata and every episode with its
 collection index, in order) is rebuilt from the shards'. Frame values equal an unsharded collection's; the files
 do not (lerobot rewrites the rows with pandas and aggregates the shards' statistics).
@@ -19,7 +20,6 @@ from __future__ import annotations
 
 import contextlib
 import io
-import os
 import shutil
 import signal
 from dataclasses import dataclass, replace
@@ -28,12 +28,12 @@ from typing import Callable
 
 import numpy as np
 
-from acn.atomic import move_into_place, temporary_beside
 from acn.datasets import schema
 from acn.datasets.metadata import AcnMetadata
 from acn.datasets.reader import read_card
 from acn.datasets.stream import Interrupted, commit_quietly, raise_interrupt, write_stream
-from acn.outputs import refuse_foreign
+from acn.outputs.leftovers import temporary_beside
+from acn.outputs.writing import Writing
 from acn.sim import parallel
 from acn.sim.collector import CollectConfig
 from acn.sim.parallel import RayConfig, import_ray, remote, task_error
@@ -78,27 +78,26 @@ def merged_acn_metadata(blocks: list[AcnMetadata]) -> AcnMetadata:
 
 
 class _Merge:
-    """Merges committed shards into ``out`` on ``commit()`` (all or nothing, as ``DatasetWriter``)."""
+    """Merges committed shards into ``output`` on ``commit()`` (all or nothing, as ``DatasetWriter``)."""
 
-    def __init__(self, shards: list[Path], out: Path) -> None:
-        self.shards, self.out = shards, out
+    def __init__(self, shards: list[Path], output: Writing) -> None:
+        self.shards, self.output = shards, output
 
     def commit(self) -> Path:
         from lerobot.datasets.aggregate import aggregate_datasets
         from lerobot.datasets.utils import load_info, write_info
 
-        tmp = temporary_beside(self.out)
+        tmp = self.output.path
         try:
             with contextlib.redirect_stderr(io.StringIO()):  # lerobot's progress bars
-                aggregate_datasets([f"acn/{p.name}" for p in self.shards], f"acn/{self.out.name}",
+                aggregate_datasets([f"acn/{p.name}" for p in self.shards], f"acn/{self.output.out.name}",
                                    roots=self.shards, aggr_root=tmp)
             info = load_info(tmp)
             info[schema.ACN_KEY] = merged_acn_metadata([read_card(p).acn for p in self.shards]).to_json()
             write_info(info, tmp)
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
-        return move_into_place(tmp, self.out)
+        except BaseException as e:
+            raise self.output.fail(e) from None
+        return self.output.commit()
 
 
 def record_shards(cfg: CollectConfig, out: str | Path, shards: int, ray_config: RayConfig, overwrite: bool = False,
@@ -109,11 +108,11 @@ def record_shards(cfg: CollectConfig, out: str | Path, shards: int, ray_config: 
     from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
     ray = import_ray()
-    out = Path(out).absolute()
-    refuse_foreign(out, schema.DATASET, overwrite)
-    replacing = out.exists()  # interrupted, the dataset there stays as it was
+    output = Writing(out, schema.DATASET, overwrite)
+    out = output.out
+    replacing = output.replaces  # interrupted, the dataset there stays as it was
     ranges = [r.tolist() for r in np.array_split(np.arange(cfg.episodes), min(shards, cfg.episodes))]
-    work = out.parent / f".{out.name}.shards-{os.getpid()}"
+    work = temporary_beside(out, "shards")
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir(parents=True)
     paths = [work / f"shard-{k:03d}" for k in range(len(ranges))]
@@ -141,7 +140,7 @@ def record_shards(cfg: CollectConfig, out: str | Path, shards: int, ray_config: 
         except ray.exceptions.RayTaskError as e:
             raise task_error(ray, e) from None
         report()
-        path = commit_quietly(_Merge(paths, out), cfg)
+        path = commit_quietly(_Merge(paths, output), cfg)
     except KeyboardInterrupt:
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not tear the merge
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
@@ -149,12 +148,14 @@ def record_shards(cfg: CollectConfig, out: str | Path, shards: int, ray_config: 
             ray.cancel(ref)  # the shard's writer loop commits its finished episodes
         ray.wait(refs, num_returns=len(refs), timeout=CANCEL_WAIT_S)
         done = [p for p in paths if (p / "meta" / "info.json").is_file()]
-        path = commit_quietly(_Merge(done, out), cfg) if done and not replacing else None
+        path = commit_quietly(_Merge(done, output), cfg) if done and not replacing else None
+        if path is None:
+            output.abort()
         raise Interrupted(path, len(read_card(path).acn.episodes) if path else 0) from None
-    except BaseException:
+    except BaseException as e:
         for ref in refs:
             ray.cancel(ref, force=True)
-        raise
+        raise output.fail(e) from None
     finally:
         signal.signal(signal.SIGTERM, previous)
         signal.signal(signal.SIGINT, previous_int)

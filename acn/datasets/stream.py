@@ -43,9 +43,9 @@ def write_stream(cfg: CollectConfig, out: str | Path, episodes: Iterator[Episode
     """The writer loop: ``episodes`` (in order, from processes or Ray) into one dataset at ``out``;
     ``procs``: the processes simulating them, stopped on an interrupt or an error."""
     task = f"{cfg.policy} ({cfg.source}" + (f" -> {cfg.target})" if cfg.target else ")")
-    replacing = Path(out).exists()  # interrupted, the dataset there stays as it was
     writer = DatasetWriter(out, fps=int(round(1.0 / cfg.sim.control_dt)), paired=cfg.paired, task=task,
                            acn_meta=collection_metadata(cfg), overwrite=overwrite)
+    replacing = writer.output.replaces  # interrupted, the dataset there stays as it was
     previous = signal.signal(signal.SIGTERM, raise_interrupt)
     try:
         for ep in episodes:
@@ -59,11 +59,10 @@ def write_stream(cfg: CollectConfig, out: str | Path, episodes: Iterator[Episode
             writer.abort()
         episodes.close()  # after the commit: the finished episodes are safe whatever closing does
         raise Interrupted(path, writer.num_episodes) from None
-    except BaseException:
+    except BaseException as e:
         _stop(procs)
         episodes.close()
-        writer.abort()
-        raise
+        raise writer.fail(e) from None
     finally:
         signal.signal(signal.SIGTERM, previous)
     for p in procs:

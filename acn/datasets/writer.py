@@ -9,14 +9,15 @@ images, about 1 ms per frame even with no image, which cost more than simulating
 ``tests/test_dataset.py`` checks that ``LeRobotDataset`` loads the result identically to a
 dataset written through ``add_frame`` / ``save_episode``.
 
-Everything is written into a hidden directory beside the destination and renamed into place
-by ``commit``: an interrupted or failed collection never leaves a half-written dataset.
+The dataset is one ``acn.outputs.writing.Writing``: its path claimed for the run, built in a
+hidden directory beside the destination and moved into place whole by ``commit``; an
+interrupted or failed collection never leaves a half-written dataset, and ``fail`` turns a write
+error into one line.
 """
 
 from __future__ import annotations
 
 import os
-import shutil
 import warnings
 from dataclasses import replace
 from pathlib import Path
@@ -25,11 +26,11 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from acn.atomic import move_into_place, temporary_beside
 from acn.datasets import schema
 from acn.datasets.metadata import AcnMetadata, EmptyEpisode, EpisodeEntry
 from acn.errors import UserError
-from acn.outputs import refuse_foreign
+from acn.outputs.writing import Writing
+
 from acn.sim.collector import Episode, Trace
 from acn.sim.state import ACTION_DIM
 
@@ -92,15 +93,17 @@ class DatasetWriter:
         from lerobot.datasets.utils import get_hf_features_from_features
 
         self.root = Path(root).absolute()
-        refuse_foreign(self.root, schema.DATASET, overwrite)
-        self.root.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = temporary_beside(self.root)
+        self.output = Writing(self.root, schema.DATASET, overwrite)
+        self._tmp = self.output.path
         self.paired, self.task = paired, task
-        self.meta = LeRobotDatasetMetadata.create(
-            repo_id=f"acn/{self.root.name}", fps=fps,
-            features=schema.features(paired, hybrid=bool(acn_meta.hybrid_actions)),
-            robot_type=schema.ROBOT_TYPE, root=self._tmp, use_videos=False,
-        )
+        try:
+            self.meta = LeRobotDatasetMetadata.create(
+                repo_id=f"acn/{self.root.name}", fps=fps,
+                features=schema.features(paired, hybrid=bool(acn_meta.hybrid_actions)),
+                robot_type=schema.ROBOT_TYPE, root=self._tmp, use_videos=False,
+            )
+        except BaseException as e:
+            raise self.output.fail(e) from None
         self.acn = acn_meta
         self._episodes: list[EpisodeEntry] = []
         self._empty: list[EmptyEpisode] = []
@@ -171,23 +174,34 @@ class DatasetWriter:
         if self.num_episodes == 0:
             self.abort()
             raise UserError("every episode ended before its first step (the simulator blew up): nothing written")
-        if self._writer is not None:
-            self._writer.close()
-            self._writer = None
-        self.meta._close_writer()  # flushes the buffered episode metadata
-        self.meta.info[schema.ACN_KEY] = replace(self.acn, episodes=tuple(self._episodes),
-                                                 empty_episodes=tuple(self._empty) or None).to_json()
-        write_info(self.meta.info, self._tmp)
-        _sort_stats(self._tmp)
-        return move_into_place(self._tmp, self.root)
+        try:
+            if self._writer is not None:
+                self._writer.close()
+                self._writer = None
+            self.meta._close_writer()  # flushes the buffered episode metadata
+            self.meta.info[schema.ACN_KEY] = replace(self.acn, episodes=tuple(self._episodes),
+                                                     empty_episodes=tuple(self._empty) or None).to_json()
+            write_info(self.meta.info, self._tmp)
+            _sort_stats(self._tmp)
+        except BaseException as e:
+            raise self.fail(e) from None
+        return self.output.commit()
 
     def abort(self) -> None:
         """Discard everything written so far."""
-        if self._writer is not None:
-            self._writer.close()
-            self._writer = None
-        try:
-            self.meta._close_writer()
-        except Exception:  # noqa: BLE001 - best effort before deleting
-            pass
-        shutil.rmtree(self._tmp, ignore_errors=True)
+        self._close_quietly()
+        self.output.abort()
+
+    def fail(self, error: BaseException) -> BaseException:
+        """Discard everything written so far; the exception to raise for ``error`` (a write error
+        becomes one line: ``acn.outputs.writing.WriteFailed``)."""
+        self._close_quietly()
+        return self.output.fail(error)
+
+    def _close_quietly(self) -> None:
+        for close in (lambda: self._writer and self._writer.close(), self.meta._close_writer):
+            try:
+                close()
+            except Exception:  # noqa: BLE001 - best effort before deleting (a full disk fails the flush)
+                pass
+        self._writer = None

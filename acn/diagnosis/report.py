@@ -79,7 +79,7 @@ from pathlib import Path
 
 import numpy as np
 
-from acn.atomic import write_file
+from acn.outputs.writing import write_file
 from acn.jsonfile import strict_json
 from acn.diagnosis.compare import Comparison, group_errors
 from acn.diagnosis.pipeline import Diagnosis
@@ -87,7 +87,7 @@ from acn.diagnosis.policy import THRESHOLDS, Thresholds, doubt, fits_noise, sign
 from acn.diagnosis.results import Added, Candidate, longer_gain
 from acn.diagnosis.traits import traits
 from acn.diagnosis.transfer import closer_by, table as closed_loop_table
-from acn.outputs import Output, json_with_format
+from acn.outputs.kinds import Output, json_with_format
 from acn.sim.effects import EFFECT_NAMES, get_effect
 
 FORMAT = "acn-diagnosis/1"
@@ -315,7 +315,7 @@ def to_json(d: Diagnosis) -> dict:
 
 
 def write_json(d: Diagnosis, path: str | Path) -> Path:
-    return write_file(path, json.dumps(strict_json(to_json(d)), indent=2, allow_nan=False) + "\n")
+    return write_file(path, json.dumps(strict_json(to_json(d)), indent=2, allow_nan=False) + "\n", DIAGNOSIS_JSON)
 
 
 # ----- terminal -------------------------------------------------------------------------------
@@ -505,7 +505,7 @@ td,th{{border:1px solid #ccc;padding:4px 8px}}</style></head><body>
 {'<p>Chains of effects tried by --auto (one effect can stand in for two):</p><ul>' + chains + '</ul>' if chains else ''}
 {_limits_html(d)}{loop_html}
 <h2>Plots</h2>{''.join(parts)}</body></html>"""
-    return write_file(path, body)
+    return write_file(path, body, REPORT)
 
 
 def _limits_html(d: Diagnosis) -> str:

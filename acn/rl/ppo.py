@@ -64,10 +64,10 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor, VecNormalize
 from torch import nn
 
-from acn.atomic import move_into_place, replacing, temporary_beside, write_file
+from acn.outputs.writing import Layout, Writing, replacing, write_file
 from acn.errors import UserError
 from acn.jsonfile import strict_json
-from acn.outputs import Output, json_with_format, refuse_foreign
+from acn.outputs.kinds import Output, json_with_format
 from acn.corrector.acn import INPUT_CHANNELS
 from acn.corrector.card import TargetDescription
 from acn.corrector.corrector import Corrector, load_for_target, torch_threads
@@ -271,15 +271,10 @@ def export_policy(model, norm, cfg: PPOConfig, training: dict) -> WalkingPolicy:
 
 def save_policy(policy: WalkingPolicy, out: Path) -> Path:
     """Write a policy directory atomically."""
-    out = Path(out).absolute()
-    tmp = temporary_beside(out)
-    tmp.mkdir(parents=True)
-    try:
-        policy.save(tmp)
-        return move_into_place(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+    with Writing(out, None) as output:
+        output.path.mkdir()
+        policy.save(output.path)
+    return output.out
 
 
 def _norm_stats(norm) -> dict:
@@ -540,7 +535,18 @@ class Trainer:
     def __init__(self, cfg: PPOConfig, out: Path, corrector_dir: Path | None = None, resume: bool = False,
                  overwrite: bool = False, log: Callable[[str], None] = print) -> None:
         cfg.validate()
-        self.out, self.log = Path(out).absolute(), log
+        self.log = log
+        # A new run is written where it is (a killed one resumes from its checkpoint); a new run over
+        # an earlier one trains beside it and replaces it only when complete (``run``): a run that
+        # fails or is interrupted leaves the earlier one as it was.
+        self.output = Writing(out, PPO_RUN, overwrite, layout=Layout.RESUMABLE, resume=resume)
+        try:
+            self._start(cfg, corrector_dir, resume)
+        except BaseException as e:
+            raise self.output.fail(e) from None
+
+    def _start(self, cfg: PPOConfig, corrector_dir: Path | None, resume: bool) -> None:
+        self.out = self.output.out
         self.ckpt = self.out / "checkpoint"
         if resume:
             if not (self.ckpt / "state.json").is_file():
@@ -552,7 +558,6 @@ class Trainer:
             if self.state.timesteps >= self.cfg.timesteps:
                 raise UserError(f"{self.out} already has {self.state.timesteps} timesteps; ask for more with --timesteps")
         else:
-            refuse_foreign(self.out, PPO_RUN, overwrite)
             self.cfg, self.state = cfg, RunState()
         if resume and corrector_dir is not None:
             raise UserError("--resume continues with the checkpoint's corrector; drop --corrector")
@@ -572,12 +577,8 @@ class Trainer:
         self.corrector: Corrector | None = None
         self.corrector_digest: str | None = None
         given = load_corrector(corrector_dir, self.env_cfg, self.robot) if corrector_dir is not None else None
-        # A new run over an earlier one trains beside it and replaces it only when complete (``run``):
-        # a run that fails or is interrupted leaves the earlier one as it was.
-        self.replaces: Path | None = None
-        if not resume and self.out.exists():
-            self.replaces, self.out = self.out, temporary_beside(self.out)
-            self.ckpt = self.out / "checkpoint"
+        self.out = self.output.path
+        self.ckpt = self.out / "checkpoint"
         self.out.mkdir(parents=True, exist_ok=True)
         write_file(self.out / RUN_MANIFEST, json.dumps({"format": RUN_FORMAT}) + "\n")
         if resume and self.state.correctors:
@@ -702,16 +703,11 @@ class Trainer:
     def checkpoint(self) -> None:
         """SB3 zip (LOCAL RESUME ONLY: cloudpickled), normalisation and run state; then the policy."""
         t0 = time.perf_counter()
-        tmp = temporary_beside(self.ckpt)
-        tmp.mkdir(parents=True)
-        try:
-            self.model.save(tmp / "ppo.zip")
-            write_json(tmp / "normalisation.json", _norm_stats(self.norm))
-            write_json(tmp / "state.json", {"config": asdict(self.cfg), "state": asdict(self.state)})
-            move_into_place(tmp, self.ckpt)
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
+        with Writing(self.ckpt, None) as output:
+            output.path.mkdir()
+            self.model.save(output.path / "ppo.zip")
+            write_json(output.path / "normalisation.json", _norm_stats(self.norm))
+            write_json(output.path / "state.json", {"config": asdict(self.cfg), "state": asdict(self.state)})
         save_policy(self.current_policy(), self.out / "policy")
         self.state.last_checkpoint = self.state.timesteps
         self.state.wall["checkpoint"] += time.perf_counter() - t0
@@ -736,13 +732,10 @@ class Trainer:
         try:
             with torch_threads(self.cfg.torch_threads):
                 metrics = self._run()
-        except BaseException:
-            if self.replaces is not None:  # the earlier run stays; nothing of this one is kept
-                shutil.rmtree(self.out, ignore_errors=True)
-            raise
-        if self.replaces is not None:
-            self.out, self.replaces = move_into_place(self.out, self.replaces), None
-            self.ckpt = self.out / "checkpoint"
+        except BaseException as e:  # beside an earlier run: nothing of this one is kept
+            raise self.output.fail(e) from None
+        self.out = self.output.commit()
+        self.ckpt = self.out / "checkpoint"
         return metrics
 
     def _run(self) -> dict:

@@ -24,10 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from acn.atomic import write_file
+from acn.outputs.writing import write_file
 from acn.errors import UserError
 from acn.jsonfile import read_json
-from acn.outputs import Output, json_object
+from acn.outputs.kinds import Output, json_object
 from acn.sim.backends import BACKENDS
 from acn.sim.effects import CATALOGUE, EFFECT_NAMES, AppliedEffect, Effect, Model, get_effect
 from acn.sim.state import NUM_JOINTS
@@ -113,7 +113,7 @@ def write_answer(dataset: str | Path, backend: str, effects: list[AppliedEffect]
     return write_file(answer_path(dataset), json.dumps({"format": ANSWER_FORMAT, "dataset": str(Path(dataset).name),
                                                         "seed": seed, "backend": backend,
                                                         "hidden_effects": [e.to_json() for e in effects]},
-                                                       indent=2) + "\n")
+                                                       indent=2) + "\n", ANSWER)
 
 
 def sealed_robot(answer: str | Path, backend: str | None = None) -> Model:

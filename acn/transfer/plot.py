@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from acn.atomic import replacing
+from acn.outputs.writing import replacing
 from acn.transfer.table import BASE, BOUND, TransferTable
 
 

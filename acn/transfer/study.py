@@ -19,17 +19,18 @@ command of its own (a subprocess; its output goes to ``OUT/logs/STEP.log``, its 
    without F, pi_M with and without F_M, pi_robot, on the robot and in each policy's own model;
 6. the table (``acn.transfer.table``), ``transfer.json``, ``transfer.png``.
 
-The study's own files are in ``OUT`` only; ``OUT`` is replaced only where it is a study this
-toolkit wrote (``TRANSFER_STUDY``), and a study that fails leaves what its stages wrote there,
-with their logs, for a look.
+The study's own files are in ``OUT`` only. It is written in place (its files name paths inside
+it) under one lock for the whole study (``acn.outputs.writing``, ``Layout.IN_PLACE``): an
+existing ``OUT`` is replaced only where it is a study this toolkit wrote (``TRANSFER_STUDY``), a
+study that fails leaves what its stages wrote there, with their logs, for a look, and a stage's
+command ends with the study, however the study ends.
 """
 
 from __future__ import annotations
 
 import json
-import os
 import shlex
-import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -39,10 +40,11 @@ from typing import Callable
 
 import numpy as np
 
-from acn.atomic import write_file
+from acn.lifetime import child_environment
+from acn.outputs.writing import Layout, Writing, write_file
 from acn.errors import UserError
 from acn.jsonfile import strict_json
-from acn.outputs import Output, json_with_format
+from acn.outputs.kinds import Output, json_with_format
 from acn.sim.backends import SimConfig
 from acn.sim.hidden import draw_hidden, load_model, write_answer
 from acn.transfer.table import TransferTable
@@ -135,8 +137,15 @@ class Step:
         with open(log, "w") as f:
             f.write(f"$ {self.command()}\n")
             f.flush()
-            code = subprocess.run(argv, stdout=f, stderr=subprocess.STDOUT, cwd=out,
-                                  env={**os.environ, "HF_HUB_OFFLINE": "1", "PYTHONUNBUFFERED": "1"}).returncode
+            # The command ends with the study however the study ends: stopped here, or killed
+            # (it watches this process: acn.lifetime).
+            child = subprocess.Popen(argv, stdout=f, stderr=subprocess.STDOUT, cwd=out,
+                                     env={**child_environment(), "HF_HUB_OFFLINE": "1", "PYTHONUNBUFFERED": "1"})
+            try:
+                code = child.wait()
+            except BaseException:
+                stop(child)
+                raise
         if code != 0:
             lines = log.read_text(errors="replace").splitlines()
             said = next((line for line in reversed(lines) if line.strip()), "")
@@ -218,11 +227,22 @@ def make_robot(cfg: TransferConfig, out: Path) -> Path:
     return write_answer(out / "robot", "mujoco", draw_hidden(cfg.hidden_effects, cfg.seed, SimConfig()), cfg.seed)
 
 
-def run_study(cfg: TransferConfig, out: Path, ray=None, say: Callable[[str], None] = print) -> dict:
-    """The study of the module docstring in ``out`` (checked and emptied by the caller); returns
-    what ``transfer.json`` holds. ``ray``: a ``RayConfig`` to run stage 4's trainings as Ray tasks."""
+def run_study(cfg: TransferConfig, out: Path, ray=None, say: Callable[[str], None] = print,
+              overwrite: bool = False) -> dict:
+    """The study of the module docstring in ``out``; returns what ``transfer.json`` holds.
+    ``ray``: a ``RayConfig`` to run stage 4's trainings as Ray tasks; ``overwrite``: replace a
+    study this toolkit wrote there."""
     cfg.validate()
-    out = Path(out).absolute()
+    output = Writing(out, TRANSFER_STUDY, overwrite, layout=Layout.IN_PLACE)
+    try:
+        result = _study(cfg, output.out, ray, say)
+    except BaseException as e:
+        raise output.fail(e) from None
+    output.commit()
+    return result
+
+
+def _study(cfg: TransferConfig, out: Path, ray, say: Callable[[str], None]) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     write_file(out / "study.started", json.dumps({"format": STUDY_FORMAT, "config": asdict(cfg)}) + "\n")
     if cfg.hidden_effects:
@@ -283,7 +303,13 @@ def on_ray(groups: list[list[Step]], out: Path, ray_config, envs: int) -> list[S
         return [r for rs in ray.get(refs) for r in rs]
 
 
-def remove_partial(out: Path) -> None:
-    """Remove a study directory this toolkit wrote (``TRANSFER_STUDY``) before a new one."""
-    if out.exists() and TRANSFER_STUDY.recognise(out):
-        shutil.rmtree(out)
+def stop(child: subprocess.Popen, grace_s: float = 30.0) -> None:
+    """End a stage's command as Ctrl-C would (it removes what it was building), or at once after
+    ``grace_s``."""
+    if child.poll() is None:
+        child.send_signal(signal.SIGINT)
+        try:
+            child.wait(grace_s)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.wait()

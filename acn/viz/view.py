@@ -16,10 +16,10 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from acn.atomic import replacing
+from acn.outputs.writing import replacing
 from acn.datasets.reader import RecordedFrames, load_frames
 from acn.errors import UserError
-from acn.outputs import Output
+from acn.outputs.kinds import Output
 from acn.viz.blueprint import build_blueprint
 from acn.viz.meshes import DEFAULT_CELL, link_meshes
 from acn.viz.trajectories import EpisodeView, corrected_target, corrector_target, parse_episodes, recorded_episode
@@ -130,7 +130,7 @@ def write_rrd(episodes: list[EpisodeView], out: Path, mesh_cell: float = DEFAULT
         raise UserError(f"--save {out} is a directory; give a file name ending in .rrd")
     out.parent.mkdir(parents=True, exist_ok=True)
     rec = rr.RecordingStream(APPLICATION_ID)
-    with replacing(out) as tmp:
+    with replacing(out, RECORDING) as tmp:
         rec.save(tmp)
         # Active, not only default: a viewer keeps the last layout per application otherwise.
         rec.send_blueprint(build_blueprint(episodes), make_active=True, make_default=True)

@@ -19,10 +19,10 @@ import json
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from acn.atomic import write_file
+from acn.outputs.writing import write_file
 from acn.errors import UserError
 from acn.jsonfile import read_json
-from acn.outputs import Output, json_with_format
+from acn.outputs.kinds import Output, json_with_format
 from acn.sim.backends import BACKENDS, SimConfig
 from acn.sim.effects.catalogue import get_effect
 from acn.sim.effects.effect import AppliedEffect, Effect, Values
@@ -119,7 +119,7 @@ class Model:
 
     def save(self, path: str | Path) -> Path:
         """Write the JSON file whole or not at all."""
-        return write_file(path, json.dumps(self.to_json(), indent=2) + "\n")
+        return write_file(path, json.dumps(self.to_json(), indent=2) + "\n", MODEL_FILE)
 
 
 def _short(v) -> str:
