@@ -199,9 +199,18 @@ class DatasetWriter:
         return self.output.fail(error)
 
     def _close_quietly(self) -> None:
-        for close in (lambda: self._writer and self._writer.close(), self.meta._close_writer):
-            try:
-                close()
-            except Exception:  # noqa: BLE001 - best effort before deleting (a full disk fails the flush)
-                pass
+        """Close the files before they are deleted; where a flush fails (a full disk), drop what
+        lerobot still buffers, so that it does not try again when it is garbage-collected."""
+        writers = [self._writer, None]
         self._writer = None
+        try:
+            self.meta._close_writer()
+        except Exception:  # noqa: BLE001 - best effort before deleting
+            self.meta.metadata_buffer.clear()
+            writers[1], self.meta.writer = getattr(self.meta, "writer", None), None
+        for writer in writers:
+            try:
+                if writer is not None:
+                    writer.close()
+            except Exception:  # noqa: BLE001
+                pass

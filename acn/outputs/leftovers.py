@@ -44,6 +44,7 @@ def alive(pid: int) -> bool:
 class Cleared:
     """What one look beside an output removed or put back."""
 
+    where: Path
     removed: tuple[str, ...] = ()
     restored: tuple[str, ...] = ()
 
@@ -51,7 +52,7 @@ class Cleared:
         """One line saying what happened, or None where nothing was there."""
         parts = []
         if self.removed:
-            parts.append(f"removed what runs that ended left here: {', '.join(self.removed)}")
+            parts.append(f"removed what runs that were killed left in {self.where}: {', '.join(self.removed)}")
         if self.restored:
             parts.append(f"put back {', '.join(self.restored)}, the output a killed run was replacing")
         return "; ".join(parts) or None
@@ -71,7 +72,7 @@ def clear_beside(out: Path) -> Cleared:
     try:
         entries = sorted(out.parent.iterdir())
     except OSError:
-        return Cleared()
+        return Cleared(out.parent)
     for entry in entries:
         if m := _LEFTOVER.match(entry.name):
             if int(m["pid"]) == os.getpid() or alive(int(m["pid"])):
@@ -90,4 +91,4 @@ def clear_beside(out: Path) -> Cleared:
             with held_if_free(entry.parent / m["name"]) as free:
                 if free:  # released on the way out: the stale lock file goes with it
                     removed.append(entry.name)
-    return Cleared(tuple(removed), tuple(restored))
+    return Cleared(out.parent, tuple(removed), tuple(restored))

@@ -113,8 +113,11 @@ def claim(out: str | Path) -> None:
         who = holder.describe() if holder else "another run"
         raise OutputBusy(f"{out} is being written by {who}: wait for it to end, or write elsewhere")
     command = _program or Path(sys.argv[0]).name or "python"
-    os.ftruncate(fd, 0)
-    os.write(fd, json.dumps({"command": command, "pid": os.getpid(), "started": time.time()}).encode())
+    try:  # who holds it, for the refusal of a second run; the lock holds without it (a full disk)
+        os.ftruncate(fd, 0)
+        os.write(fd, json.dumps({"command": command, "pid": os.getpid(), "started": time.time()}).encode())
+    except OSError:
+        pass
     _claims[key] = _Claim(fd, path, os.getpid())
 
 

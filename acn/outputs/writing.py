@@ -137,11 +137,10 @@ class Writing:
         code = write_errno(error)
         if code is None:
             return error
-        what = self.kind.what if self.kind else "file"
         if self.in_place:
             kept = f"what the run wrote so far is in {self.out}"
         elif self.replaces:
-            kept = f"nothing of this run was kept; the previous {what} is as it was"
+            kept = f"nothing of this run was kept; {self.out.name} is as it was"
         else:
             kept = "nothing was written"
         return WriteFailed(f"cannot write {self.out}: {WRITE_ERRORS[code]}; {kept}")
