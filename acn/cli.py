@@ -22,7 +22,7 @@ from typing import Callable, Iterator, NoReturn
 from acn.errors import UserError
 from acn.flags import (Flag, add_flags, comma_list, config_from_args, given, given_fields, nonneg_float, nonneg_int, number, positive_float,
                        positive_int, seconds)
-from acn.outputs.checks import check_input_dir, check_output
+from acn.outputs.checks import check_input_dir, check_output, check_space
 
 EXIT_USAGE, EXIT_WRITE, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 2, 1, 130, 141  # 141: 128 + SIGPIPE
 
@@ -303,6 +303,9 @@ def collect_main(argv: list[str] | None = None) -> int:
         cfg = collect_config_from_args(args)
         if cfg.hidden_effects:
             check_output(answer_path(args.out), ANSWER, flag="the answer beside --out")
+        from acn.datasets.schema import least_bytes
+
+        check_space(args.out, least_bytes(cfg.episodes * cfg.steps_per_episode, cfg.paired), "collection")
         ray = _ray_config(args)
         if ray is None and args.shards > 1:
             raise UserError("--shards needs --ray (the shards are written by Ray tasks)")
@@ -895,7 +898,9 @@ def diagnose_main(argv: list[str] | None = None) -> int:
         from acn.measurements.data import load_measurement_sets
         from acn.diagnosis import ClosedLoop, DiagnoseConfig, Stages, run
         from acn.diagnosis.clock import StageClock
-        from acn.diagnosis.report import terminal, write_html, write_json
+        from acn.diagnosis.report import DIAGNOSIS_JSON, REPORT, html_text, json_text, terminal
+        from acn.outputs.writing import write_files
+        from acn.sim.effects.model import MODEL_FILE
         from acn.sim.hidden import load_model
 
         cfg = config_from_args(args, DiagnoseConfig(), _diagnose_flags())
@@ -938,12 +943,17 @@ def diagnose_main(argv: list[str] | None = None) -> int:
         if args.verbose:
             print("stages: " + ", ".join(f"{name} {s:.1f} s" for name, s in result.stages.items())
                   + f"; total {result.seconds['total']:.1f} s")
+        # The files of one diagnosis are written together: all of them, or (a full disk) none.
+        files = [(path, text(), kind) for path, text, kind in (
+            (args.json, lambda: json_text(result), DIAGNOSIS_JSON), (args.report, lambda: html_text(result), REPORT),
+            (args.save_model, result.model.to_text, MODEL_FILE)) if path is not None]
+        write_files(files)
         if args.json:
-            print(f"wrote {write_json(result, args.json)}")
+            print(f"wrote {args.json}")
         if args.report:
-            print(f"wrote the report {write_html(result, args.report)}")
+            print(f"wrote the report {args.report}")
         if args.save_model:
-            print(f"wrote the model {result.model.save(args.save_model)}"
+            print(f"wrote the model {args.save_model}"
                   + (" (as given: the effects added do not hold)" if result.model is not result.final.model else ""))
         return 0
 

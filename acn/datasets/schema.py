@@ -27,6 +27,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from acn.outputs.kinds import Output, json_object
 from acn.sim.state import ACTION_DIM, ACTION_NAMES, HYBRID_NAMES, STATE_DIM, STATE_NAMES
 
@@ -56,6 +58,20 @@ DATASET = Output("dataset directory", directory=True, recognise=is_dataset)
 
 def target_key(key: str) -> str:
     return TARGET_PREFIX + key
+
+
+# The least a dataset takes on disk, for refusing a collection its disk cannot hold before it runs:
+# half the frame's raw bytes (simulated floats hardly compress; the half leaves room for columns
+# that do) and lerobot's metadata files.
+INDEX_BYTES = 4 + 4 * 8          # timestamp (float32), frame, episode, global and task index (int64)
+META_BYTES = 64_000
+
+
+def least_bytes(frames: int, paired: bool, hybrid: bool = False) -> int:
+    """A lower bound of the bytes a dataset of ``frames`` frames takes (see ``META_BYTES``)."""
+    size = {"float32": 4, "bool": 1}
+    row = INDEX_BYTES + sum(size[f["dtype"]] * int(np.prod(f["shape"])) for f in features(paired, hybrid).values())
+    return int(META_BYTES + 0.5 * row * frames)
 
 
 def features(paired: bool, hybrid: bool = False) -> dict[str, dict]:

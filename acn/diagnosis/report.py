@@ -314,8 +314,13 @@ def to_json(d: Diagnosis) -> dict:
     }
 
 
+def json_text(d: Diagnosis) -> str:
+    """The diagnosis JSON file's text."""
+    return json.dumps(strict_json(to_json(d)), indent=2, allow_nan=False) + "\n"
+
+
 def write_json(d: Diagnosis, path: str | Path) -> Path:
-    return write_file(path, json.dumps(strict_json(to_json(d)), indent=2, allow_nan=False) + "\n", DIAGNOSIS_JSON)
+    return write_file(path, json_text(d), DIAGNOSIS_JSON)
 
 
 # ----- terminal -------------------------------------------------------------------------------
@@ -411,6 +416,10 @@ def _limit_row(x, one_joint: bool = False) -> list[str]:
 
 # ----- HTML -----------------------------------------------------------------------------------
 def write_html(d: Diagnosis, path: str | Path) -> Path:
+    return write_file(path, html_text(d), REPORT)
+
+
+def html_text(d: Diagnosis) -> str:
     """A self-contained report (plotly.js inline): error breakdown, ranking, error falling."""
     import plotly.graph_objects as go
     import plotly.io as pio
@@ -505,7 +514,7 @@ td,th{{border:1px solid #ccc;padding:4px 8px}}</style></head><body>
 {'<p>Chains of effects tried by --auto (one effect can stand in for two):</p><ul>' + chains + '</ul>' if chains else ''}
 {_limits_html(d)}{loop_html}
 <h2>Plots</h2>{''.join(parts)}</body></html>"""
-    return write_file(path, body, REPORT)
+    return body
 
 
 def _limits_html(d: Diagnosis) -> str:

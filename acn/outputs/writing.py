@@ -30,7 +30,7 @@ import signal
 import threading
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
+from typing import Iterator, Sequence
 
 from acn.outputs.checks import check_output
 from acn.outputs.kinds import Output
@@ -174,12 +174,27 @@ def replacing(path: str | Path, kind: Output | None = None) -> Iterator[Path]:
 def write_file(path: str | Path, data: str | bytes, kind: Output | None = None) -> Path:
     """Write ``data`` to ``path`` whole or not at all; returns the path as given. ``kind``: a
     file a user named, replaced only where it is the toolkit's own of that kind."""
-    with replacing(path, kind) as tmp:
-        if isinstance(data, bytes):
-            tmp.write_bytes(data)
-        else:
-            tmp.write_text(data)
-    return Path(path)
+    return write_files([(path, data, kind)])[0]
+
+
+def write_files(files: Sequence[tuple[str | Path, str | bytes, Output | None]]) -> list[Path]:
+    """The files of one run, ``(path, data, kind)`` each, written all or none: each is built
+    beside its path, and they are moved in only once every one is written."""
+    writings: list[Writing] = []
+    try:
+        for path, data, kind in files:
+            writings.append(Writing(path, kind))
+            if isinstance(data, bytes):
+                writings[-1].path.write_bytes(data)
+            else:
+                writings[-1].path.write_text(data)
+    except BaseException as e:
+        failures = [w.fail(e) for w in writings]
+        raise (failures[-1] if failures else e) from None
+    with _signals_held():
+        for w in writings:
+            w.commit()
+    return [Path(path) for path, _, _ in files]
 
 
 def _remove(path: Path) -> None:

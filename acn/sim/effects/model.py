@@ -117,9 +117,13 @@ class Model:
             raise UserError(f"model {str(spec)!r} is neither a backend ({', '.join(BACKENDS)}) nor a model JSON file")
         return cls.load(spec)
 
+    def to_text(self) -> str:
+        """The model file's text."""
+        return json.dumps(self.to_json(), indent=2) + "\n"
+
     def save(self, path: str | Path) -> Path:
         """Write the JSON file whole or not at all."""
-        return write_file(path, json.dumps(self.to_json(), indent=2) + "\n", MODEL_FILE)
+        return write_file(path, self.to_text(), MODEL_FILE)
 
 
 def _short(v) -> str:
