@@ -79,15 +79,15 @@ from pathlib import Path
 
 import numpy as np
 
-from acn.outputs.writing import write_file
-from acn.jsonfile import strict_json
 from acn.diagnosis.compare import Comparison, group_errors
 from acn.diagnosis.pipeline import Diagnosis
 from acn.diagnosis.policy import THRESHOLDS, Thresholds, doubt, fits_noise, significant, unidentified
 from acn.diagnosis.results import Added, Candidate, longer_gain
 from acn.diagnosis.traits import traits
 from acn.diagnosis.transfer import closer_by, table as closed_loop_table
+from acn.jsonfile import strict_json
 from acn.outputs.kinds import Output, json_with_format
+from acn.outputs.writing import write_file
 from acn.sim.effects import EFFECT_NAMES, get_effect
 
 FORMAT = "acn-diagnosis/1"

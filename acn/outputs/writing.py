@@ -180,6 +180,9 @@ def write_file(path: str | Path, data: str | bytes, kind: Output | None = None) 
 def write_files(files: Sequence[tuple[str | Path, str | bytes, Output | None]]) -> list[Path]:
     """The files of one run, ``(path, data, kind)`` each, written all or none: each is built
     beside its path, and they are moved in only once every one is written."""
+    for path, _, _ in files:  # the moves at the end must not fail: a directory in the way fails now
+        if Path(path).is_dir():
+            raise IsADirectoryError(errno.EISDIR, "a directory is in the way of the file", str(path))
     writings: list[Writing] = []
     try:
         for path, data, kind in files:

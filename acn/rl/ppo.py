@@ -64,15 +64,15 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor, VecNormalize
 from torch import nn
 
-from acn.outputs.writing import Layout, Writing, replacing, write_file
+from acn.corrector.acn import INPUT_CHANNELS
+from acn.corrector.card import TargetDescription
+from acn.corrector.config import FitConfig
+from acn.corrector.corrector import Corrector, load_for_target, torch_threads
+from acn.corrector.evaluate import HELD_OUT_SEED_OFFSET, distribution_stats, episode_stats
 from acn.errors import UserError
 from acn.jsonfile import strict_json
 from acn.outputs.kinds import Output, json_with_format
-from acn.corrector.acn import INPUT_CHANNELS
-from acn.corrector.card import TargetDescription
-from acn.corrector.corrector import Corrector, load_for_target, torch_threads
-from acn.corrector.evaluate import HELD_OUT_SEED_OFFSET, distribution_stats, episode_stats
-from acn.corrector.config import FitConfig
+from acn.outputs.writing import Layout, Writing, replacing, write_file
 from acn.rl.policy_io import WalkingPolicy, policy_config
 from acn.sim.backends import ACTION_MODES, SimConfig
 from acn.sim.collector import CollectConfig, initial_state

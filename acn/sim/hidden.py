@@ -24,10 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from acn.outputs.writing import write_file
 from acn.errors import UserError
 from acn.jsonfile import read_json
 from acn.outputs.kinds import Output, json_object
+from acn.outputs.writing import write_file
 from acn.sim.backends import BACKENDS
 from acn.sim.effects import CATALOGUE, EFFECT_NAMES, AppliedEffect, Effect, Model, get_effect
 from acn.sim.state import NUM_JOINTS

@@ -40,11 +40,11 @@ from typing import Callable
 
 import numpy as np
 
-from acn.lifetime import child_environment
-from acn.outputs.writing import Layout, Writing, write_file
 from acn.errors import UserError
 from acn.jsonfile import strict_json
+from acn.lifetime import child_environment
 from acn.outputs.kinds import Output, json_with_format
+from acn.outputs.writing import Layout, Writing, write_file
 from acn.sim.backends import SimConfig
 from acn.sim.hidden import draw_hidden, load_model, write_answer
 from acn.transfer.table import TransferTable

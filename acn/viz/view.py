@@ -16,10 +16,10 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from acn.outputs.writing import replacing
 from acn.datasets.reader import RecordedFrames, load_frames
 from acn.errors import UserError
 from acn.outputs.kinds import Output
+from acn.outputs.writing import replacing
 from acn.viz.blueprint import build_blueprint
 from acn.viz.meshes import DEFAULT_CELL, link_meshes
 from acn.viz.trajectories import EpisodeView, corrected_target, corrector_target, parse_episodes, recorded_episode

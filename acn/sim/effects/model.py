@@ -19,10 +19,10 @@ import json
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from acn.outputs.writing import write_file
 from acn.errors import UserError
 from acn.jsonfile import read_json
 from acn.outputs.kinds import Output, json_with_format
+from acn.outputs.writing import write_file
 from acn.sim.backends import BACKENDS, SimConfig
 from acn.sim.effects.catalogue import get_effect
 from acn.sim.effects.effect import AppliedEffect, Effect, Values
