@@ -427,7 +427,9 @@ def import_log(log: str | Path | list[str | Path], out: str | Path, cfg: ImportC
                map_path: str | Path | None = None, overwrite: bool = False) -> tuple[Path, ImportReport]:
     """Convert ``log`` (a file, or several one after the other: ``read_logs``) into a measurement
     dataset at ``out`` (all or nothing)."""
+    from acn.datasets.schema import least_bytes
     from acn.datasets.writer import DatasetWriter
+    from acn.outputs.checks import check_space
 
     logs = [Path(p) for p in log] if isinstance(log, (list, tuple)) else [Path(log)]
     log = logs[0] if len(logs) == 1 else Path(f"{logs[0]} (+ {len(logs) - 1} more)")  # as messages name it
@@ -503,6 +505,7 @@ def import_log(log: str | Path | list[str | Path], out: str | Path, cfg: ImportC
         fall_rule=FALL_RULE, missing_channels=tuple(missing), effort_logged=has_effort,
         hybrid_actions=action.shape[1] > NUM_JOINTS,
     )
+    check_space(out, least_bytes(n, paired=False, hybrid=bool(meta.hybrid_actions)), "import")
     writer = DatasetWriter(out, fps=cfg.control_hz, paired=False, task=f"log {log.name}", acn_meta=meta,
                            overwrite=overwrite)
     dropped = transitions = 0
@@ -541,9 +544,8 @@ def import_log(log: str | Path | list[str | Path], out: str | Path, cfg: ImportC
                             f"({report.cut_nonfinite} non-finite rows, {report.cut_implausible} with values no A1 can "
                             f"produce, {report.time_breaks} time-step breaks)")
         path = writer.commit()
-    except BaseException:
-        writer.abort()
-        raise
+    except BaseException as e:
+        raise writer.fail(e) from None
     return path, report
 
 

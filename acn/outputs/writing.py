@@ -135,7 +135,7 @@ class Writing:
         """Abort, and the exception to raise for ``error``: ``WriteFailed`` for a write error."""
         self.abort()
         code = write_errno(error)
-        if code is None:
+        if code is None or isinstance(error, WriteFailed):
             return error
         if self.in_place:
             kept = f"what the run wrote so far is in {self.out}"

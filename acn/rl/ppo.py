@@ -659,9 +659,8 @@ class Trainer:
             for ep in episodes:
                 writer.write(ep)
             writer.commit()
-        except BaseException:
-            writer.abort()
-            raise
+        except BaseException as e:
+            raise writer.fail(e) from None
         self.state.datasets.append(rel)
         paths = [self.out / d for d in self.state.datasets[-cfg.refit_window:]]
         fcfg = FitConfig(variant=cfg.corrector_variant, epochs=cfg.fit_epochs, eval_episodes=0, seed=cfg.seed)
