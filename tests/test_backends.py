@@ -315,3 +315,19 @@ def test_the_accelerometer_kind_changes_nothing_but_the_accelerometer(name):
     other = np.setdiff1d(np.arange(out["mean"].shape[1]), acc)
     np.testing.assert_allclose(out["instant"][:, other], out["mean"][:, other], atol=1e-9)
     assert not np.allclose(out["instant"][:, acc], out["mean"][:, acc])
+
+
+def test_pybullet_rows_give_the_same_prediction_on_worker_processes_as_here(small_episodes):
+    """PyBullet's re-simulation runs in chunks, each in a fresh simulator (its contact solver
+    warm-starts from the rows before); the chunks on two worker processes give what they give here."""
+    from acn.sim.resim import Resimulator
+
+    source = [e.source for e in small_episodes]
+    states = np.concatenate([t.state[:-2] for t in source])
+    actions = np.concatenate([np.stack([t.action[i:i + 2] for i in range(len(t.state) - 2)]) for t in source])
+    model = np.arange(len(states)) % 3  # three models of one physics: at least three chunks
+    here = Resimulator("pybullet", [SimConfig()] * 3, threads=1).run(states, actions, model=model)
+    pooled = Resimulator("pybullet", [SimConfig()] * 3, threads=2).run(states, actions, model=model)
+    assert np.isfinite(here.state[:, :, SLICES["joint_pos"]]).all()
+    for a, b in ((here.state, pooled.state), (here.effort, pooled.effort), (here.diverged, pooled.diverged)):
+        assert np.array_equal(a, b, equal_nan=True)

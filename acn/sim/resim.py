@@ -10,7 +10,12 @@ batch can hold many parameter values (finite differences, fits) at once.
   comes from the state vector without MjData (``PhysicsLayout``); the control sequence per
   physics step carries the latency (``Actuation.commands``). A law MuJoCo cannot express
   (a dead band) is evaluated in numpy between single-step rollouts.
-- PyBullet: one simulator per model, ``set_state`` / ``step`` row by row.
+- PyBullet: ``set_state`` / ``step`` row by row, in chunks of about ``PYBULLET_CHUNK_STEPS``
+  control steps, each chunk in a simulator of its own (PyBullet's contact solver starts each
+  step from the last one's impulses, so a row's prediction would depend, by about 1e-6, on the
+  rows run before it; with a fresh simulator per chunk it depends on its chunk only). The chunks
+  run on up to ``threads`` worker processes (``acn.sim.workers``), the same result bit for bit
+  as one after the other here.
 
 Predicted contacts are not simulated state: they come back NaN.
 
@@ -31,8 +36,12 @@ from acn.sim.actuation import Actuation, history_window
 from acn.sim.backends import SimConfig, SimulationDiverged, make_backend
 from acn.sim.cpus import usable_cpus
 from acn.sim.state import ACTION_DIM, SLICES, STATE_DIM
+from acn.sim.workers import pool_map
 
 MAX_BATCH_FLOATS = 4_000_000  # rollout output held at once (~32 MB)
+# PyBullet control steps per chunk: a few seconds of work, beside which building its simulator
+# (10-30 ms) and sending its rows to a worker cost under 1 %.
+PYBULLET_CHUNK_STEPS = 2000
 
 
 @dataclass
@@ -93,7 +102,6 @@ class Resimulator:
         self.actuation = [Actuation.from_config(c) for c in self.configs]
         self.threads = threads or max(1, min(usable_cpus(), 8))
         self._models: list | None = None   # MuJoCo models, compiled on first use
-        self._sims: dict[int, object] = {}  # PyBullet simulators, built on first use
 
     @property
     def control_dt(self) -> float:
@@ -127,11 +135,18 @@ class Resimulator:
         if self.backend == "mujoco":
             self._run_mujoco(index, states, actions, previous, out)
             return out
+        per = max(1, PYBULLET_CHUNK_STEPS // actions.shape[1])
+        chunks, tasks = [], []
         for m in np.unique(index):
             rows = np.flatnonzero(index == m)
             window = history_window(actions[rows], None if previous is None else np.asarray(previous)[rows],
                                     self.actuation[m].history)
-            self._run_backend(int(m), rows, states[rows], window, out)
+            for lo in range(0, len(rows), per):
+                chunks.append(rows[lo:lo + per])
+                tasks.append((self.backend, self.configs[m], self.actuation[m].history, states[rows[lo:lo + per]],
+                              window[lo:lo + per]))
+        for rows, (state, effort, diverged) in zip(chunks, pool_map(resimulate_rows, tasks, self.threads)):
+            out.state[rows], out.effort[rows], out.diverged[rows] = state, effort, diverged
         return out
 
     # ----- MuJoCo: mujoco.rollout ------------------------------------------------------------
@@ -211,29 +226,37 @@ class Resimulator:
         pred[bad], eff[bad] = np.nan, np.nan
         out.state[rows], out.effort[rows], out.diverged[rows] = pred, eff, bad
 
-    # ----- any backend: set_state / step -------------------------------------------------------
-    def _run_backend(self, m: int, rows: np.ndarray, states: np.ndarray, window: np.ndarray, out: Prediction) -> None:
-        if m not in self._sims:
-            self._sims[m] = make_backend(self.backend, self.configs[m])
-        sim, hist = self._sims[m], self.actuation[m].history
-        for i, r in enumerate(rows):
-            sim.set_state(states[i], previous_actions=window[i, :hist])
-            try:
-                for j, a in enumerate(window[i, hist:]):
-                    out.effort[r, j] = sim.step(a)
-                    out.state[r, j] = sim.get_state()
-            except SimulationDiverged:
-                out.state[r], out.effort[r], out.diverged[r] = np.nan, np.nan, True
-                continue
-            out.state[r, :, SLICES["contact"]] = np.nan
-
     def close(self) -> None:
-        for sim in self._sims.values():
-            sim.close()
-        self._sims.clear()
+        """Nothing to release: MuJoCo's models are freed with the object, PyBullet's simulators
+        with their chunk (kept so that callers may use ``with Resimulator(...)``)."""
 
     def __enter__(self) -> "Resimulator":
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def resimulate_rows(backend: str, config: SimConfig, history: int, states: np.ndarray,
+                    window: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Any backend, ``set_state`` / ``step``: the rows of one chunk in a simulator of their own;
+    ``window`` (n, history + K, A) the actions before and from each row's step. Returns the
+    predicted states (contacts NaN), the efforts and which rows diverged (their values NaN)."""
+    n, k = len(states), window.shape[1] - history
+    state, effort = np.full((n, k, STATE_DIM), np.nan), np.full((n, k, ACTION_DIM), np.nan)
+    diverged = np.zeros(n, dtype=bool)
+    sim = make_backend(backend, config)
+    try:
+        for i in range(n):
+            sim.set_state(states[i], previous_actions=window[i, :history])
+            try:
+                for j, a in enumerate(window[i, history:]):
+                    effort[i, j] = sim.step(a)
+                    state[i, j] = sim.get_state()
+            except SimulationDiverged:
+                state[i], effort[i], diverged[i] = np.nan, np.nan, True
+                continue
+            state[i, :, SLICES["contact"]] = np.nan
+    finally:
+        sim.close()
+    return state, effort, diverged
