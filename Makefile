@@ -105,6 +105,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/diagnose.py
 	$(BIN)/python benchmarks/odometry.py
 	$(BIN)/python benchmarks/scale.py
+	$(BIN)/python benchmarks/pybullet_resim.py
 	$(BIN)/python benchmarks/diagnose_scenarios.py
 
 clean:
