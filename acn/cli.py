@@ -82,6 +82,7 @@ def _run(prog: str, body: Callable[[], int | None]) -> int:
     finally:
         release_all()
         logging.getLogger("acn").removeHandler(said)
+        logging.getLogger("acn").propagate = True
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
 
@@ -98,6 +99,7 @@ def _say_library_warnings(prog: str) -> logging.Handler:
     handler.setLevel(logging.WARNING)
     logger = logging.getLogger("acn")
     logger.addHandler(handler)
+    logger.propagate = False  # said once, even where a library has configured the root logger
     return handler
 
 

@@ -96,6 +96,20 @@ def test_leftovers_of_dead_runs_go_and_a_live_runs_stay(tmp_path, other_run):
     assert str(tmp_path) in cleared.line() and "put back" in cleared.line()
 
 
+def test_a_runs_own_locks_beside_its_output_are_not_leftovers(tmp_path):
+    """A run writing two files side by side (acn-diagnose: --json and --report) holds both locks:
+    clearing beside one leaves the other's lock as it is and says nothing of it."""
+    claim(tmp_path / "d.json")
+    claim(tmp_path / "d.html")
+    try:
+        assert clear_beside(tmp_path / "d.json").removed == ()
+        assert lock_path(tmp_path / "d.html").exists()
+    finally:
+        release(tmp_path / "d.html")
+        release(tmp_path / "d.json")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_an_output_is_replaced_whole_and_a_failure_keeps_the_old(tmp_path):
     out = tmp_path / "out"
     with Writing(out, STUDY_LIKE) as w:

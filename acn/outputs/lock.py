@@ -151,8 +151,13 @@ def _drop(held: _Claim) -> None:
 
 @contextmanager
 def held_if_free(out: Path) -> Iterator[bool]:
-    """``out``'s lock for the block where nobody holds it (True), else False; a stale lock file
-    is removed on the way out."""
+    """``out``'s lock for the block where nobody holds it (True), else False (this process's own
+    claim included: a run writing two outputs side by side holds both); a stale lock file is
+    removed on the way out."""
+    held = _claims.get(_key(out))
+    if held is not None and held.owner == os.getpid():
+        yield False
+        return
     try:
         claim(out)
     except OutputBusy:
