@@ -17,7 +17,7 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
-from acn.outputs.lock import LOCK_SUFFIX, held_if_free
+from acn.outputs.lock import LOCK_SUFFIX, held_if_free, holds
 
 PARTIAL = ".partial-"
 OLD = "old"
@@ -87,7 +87,7 @@ def clear_beside(out: Path) -> Cleared:
                 else:
                     _remove(entry)
                     removed.append(entry.name)
-        elif (m := _LOCK.match(entry.name)) and m["name"] != out.name:
+        elif (m := _LOCK.match(entry.name)) and m["name"] != out.name and not holds(entry.parent / m["name"]):
             with held_if_free(entry.parent / m["name"]) as free:
                 if free:  # released on the way out: the stale lock file goes with it
                     removed.append(entry.name)

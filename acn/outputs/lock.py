@@ -149,15 +149,16 @@ def _drop(held: _Claim) -> None:
     os.close(held.fd)
 
 
+def holds(out: str | Path) -> bool:
+    """Whether this process holds ``out``'s lock (a run writing two outputs side by side holds both)."""
+    held = _claims.get(_key(out))
+    return held is not None and held.owner == os.getpid()
+
+
 @contextmanager
 def held_if_free(out: Path) -> Iterator[bool]:
-    """``out``'s lock for the block where nobody holds it (True), else False (this process's own
-    claim included: a run writing two outputs side by side holds both); a stale lock file is
-    removed on the way out."""
-    held = _claims.get(_key(out))
-    if held is not None and held.owner == os.getpid():
-        yield False
-        return
+    """``out``'s lock for the block where no other process holds it (True), else False; a stale
+    lock file is removed on the way out."""
     try:
         claim(out)
     except OutputBusy:
