@@ -374,7 +374,7 @@ def a_robot_lying_on_its_back_without_any_effect_is_none(tmp, value):
     value["small_removed"] = round(max((c.judgement.removed for c in small), default=0.0), 3)
     value["structured_share"] = round(d.structured_share, 3)
     assert small and max(c.judgement.removed for c in small) > 0.2, [(c.name, c.judgement.removed) for c in small]
-    assert d.verdict == "none" and "below 3/4 of the smallest realistic" in d.reason, d.reason
+    assert d.verdict == "none" and "below 75% of the smallest realistic" in d.reason, d.reason
     assert d.structured_share < 0.15
 
 

@@ -71,6 +71,11 @@ def test_two_effects_together_are_both_found(tmp_path):
     names = [a.name for a in d.added]
     assert set(names[:2]) == {"actuator_latency", "joint_damping"}, names
     assert [c.names for c in d.chains] == [names] and d.chains[0].kept, [c.to_json() for c in d.chains]
+    # the trace says why each was added, with the thresholds passed, and ends with the verdict
+    added = [x for x in d.decisions if x.rule == "greedy" and x.outcome.endswith(" added")]
+    assert [x.inputs["effect"] for x in added] == names[:len(added)] and len(added) >= 2
+    assert all("(at least 5.0%)" in x.sentence for x in added), [x.sentence for x in added]
+    assert [x.rule for x in d.decisions if not x.within][-2:] == ["verdict", "does_not_hold"]
     values = {t.name: t.values for t in d.final.model.effects}  # each effect refitted as the next one came in
     assert close(values["actuator_latency"]["seconds"], 0.01) and close(values["joint_damping"]["value"], 0.5)
     assert d.verdict == "effect" and d.final.headline < 0.2 * d.before.headline
@@ -376,6 +381,10 @@ def test_cli_writes_json_report_and_model(tmp_path, capsys):
     assert result["verdict"] == "effect" and result["data_checks"] == []  # acn-collect's data are consistent
     assert set(result["error"]) == {"1", "5"} and "joint_vel" in result["error"]["1"]
     assert [r["name"] for r in result["ranking"]][0] == "motor_strength"
+    assert result["ranking"][0]["plausibility"] == "plausible"
+    decided = [x for x in result["decisions"] if x["reported"]]  # how it decided, as the report shows it
+    assert decided[-1]["rule"] == "verdict" and decided[-1]["outcome"] == "effect"
+    assert "How it decided" in (tmp_path / "r.html").read_text() and "how it decided:" in out
     for key in ("name", "params", "free_parameters", "explained", "score"):
         assert key in result["ranking"][0]
     added = result["added"][0]
@@ -752,7 +761,7 @@ def test_a_small_effect_added_under_sensor_noise_is_named_in_the_verdict():
     assert "explains 60%" in reason and "only 9% of the one-step error left" in reason, reason
     offsets = fit("encoder_offset", 1e-4)  # below the smallest realistic offset: set aside
     v, reason, _ = verdict(before, mse, 0.89 * mse, [Candidate(offsets, judged, judged.removed)], [], automatic=True)
-    assert v == "none" and "encoder_offset" in reason and "below 3/4 of the smallest realistic" in reason, reason
+    assert v == "none" and "encoder_offset" in reason and "below 75% of the smallest realistic" in reason, reason
 
 
 def test_an_effect_that_acts_on_few_steps_is_significant_by_its_longest_horizon_gain():
@@ -965,3 +974,66 @@ def test_several_datasets_of_one_robot_are_diagnosed_together(tmp_path):
                                  sim=SimConfig(kp=40.0)), tmp_path / "stiff")
     with pytest.raises(UserError, match="other control settings"):
         load_measurement_sets([paths[0], other])
+
+
+def test_decisions_are_kept_only_while_traced_each_with_the_search_it_was_made_in():
+    """``decisions.record`` keeps nothing outside ``tracing`` (a rule called alone); inside, every
+    decision in order, marked with the searches open when it was made."""
+    from acn.diagnosis.decisions import record, tracing, within
+
+    record("greedy", "added", "not kept")
+    with tracing() as trace:
+        record("greedy", "x added", "x added", effect="x", z=np.float64(4.0))
+        with within("chain started with y"), within("revisit y"):
+            record("greedy", "y added", "y added", effect="y")
+    assert [(d.outcome, d.within) for d in trace.decisions] == [
+        ("x added", ""), ("y added", "chain started with y; revisit y")]
+    assert trace.main() == trace.decisions[:1] and trace.of("greedy", effect="y") == trace.decisions[1:]
+    assert type(trace.decisions[0].inputs["z"]) is float  # numpy scalars as Python ones: JSON as it is
+
+
+def test_a_rules_decision_says_the_figures_and_the_thresholds_it_used():
+    """A rule that fires records its inputs and a sentence built from them and from its
+    thresholds: with other thresholds the sentence says the other numbers."""
+    from acn.diagnosis.decisions import tracing
+    from acn.diagnosis.policy import Thresholds, prefer_simpler
+
+    rng = np.random.default_rng(3)
+    gains = ranked_candidate(rng, "pd_gains", 1.2, 0.40, None)
+    damping = ranked_candidate(rng, "joint_damping", 1.2, 0.401, None)
+    for z in (2.0, 2.5):
+        with tracing() as trace:
+            assert prefer_simpler([gains, damping], t=Thresholds(parsimony_z=z))[0] is damping
+        (decision,) = trace.decisions
+        assert decision.rule == "prefer_simpler" and decision.outcome == "joint_damping before pd_gains"
+        assert decision.inputs["parsimony_z"] == z and f"(at least {z:g})" in decision.sentence, decision.sentence
+        assert f"by z {decision.inputs['z']:.1f} only" in decision.sentence
+
+
+def test_the_verdict_and_the_halves_check_are_decisions_in_the_trace():
+    """``policy.verdict`` records the verdict it gives with the shares and thresholds it compared;
+    ``holds_on_halves`` turns an effect verdict unexplained where the two halves' fits disagree,
+    and records that too (the pipeline never overturns a verdict itself)."""
+    from acn.diagnosis.compare import Comparison
+    from acn.diagnosis.decisions import tracing
+    from acn.diagnosis.halves import HalfFits
+    from acn.diagnosis.heldout import Judgement
+    from acn.diagnosis.policy import Thresholds, holds_on_halves, verdict
+    from acn.diagnosis.results import Added
+
+    rng = np.random.default_rng(0)
+    residual = rng.normal(0.0, 0.1, (300, 4))
+    before = Comparison(Model("mujoco"), {}, {1: np.full(4, 0.4)}, np.arange(300), residual, np.zeros((300, 43)), 0)
+    damping = ranked_candidate(rng, "joint_damping", 0.5, 0.1, None)
+    step = Added(damping.fit, damping.judgement, before, before)
+    t = Thresholds(effect_share=0.6)
+    with tracing() as trace:
+        judged = verdict(before, 1.0, 0.0, [damping], [step], automatic=True, t=t)
+        assert judged[0] == "effect"
+        halves = HalfFits("joint_damping", ("value",), np.array([0.3]), np.array([0.7]), np.array([0.01]),
+                          np.array([0.01]), chi2=800.0)
+        v, reason, named = holds_on_halves(judged, [halves], [step], 1.0, 0.0, t=t)
+    assert v == "unexplained" and named == () and "not alike on two halves" in reason
+    first, second = trace.decisions
+    assert first.rule == "verdict" and first.outcome == "effect" and first.inputs["effect_share"] == 0.6
+    assert second.rule == "does_not_hold" and second.outcome == "unexplained" and second.sentence.endswith(reason)

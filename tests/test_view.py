@@ -254,6 +254,10 @@ def diagnosis_json() -> dict:
             "ranking": [{"name": "joint_damping", "explained": 0.97, "significant": True},
                         {"name": "armature", "explained": 0.1, "significant": False}],
             "added": [{"name": "joint_damping", "headline_before": 0.21, "headline_after": 0.01}],
+            "decisions": [{"rule": "greedy", "outcome": "joint_damping added", "reported": True,
+                           "sentence": "joint_damping added (shared): explains 97% of the error above the noise floor"},
+                          {"rule": "greedy", "outcome": "armature added", "reported": False,
+                           "sentence": "armature added in another chain"}],
             "data_checks": [{"check": "contacts", "channels": ["FR_contact"],
                              "message": "FR_contact should be 0/1 flags (1: touching the ground) but reach 80"}],
             "limits": [{"effect": "joint_friction", "parameter": "value", "unit": "N m", "limit": 0.25,
@@ -348,6 +352,8 @@ def test_the_error_falls_when_the_hidden_effect_is_added(hidden):
     assert "verdict **effect**" in doc and "the error grows with joint speed" in doc
     assert "| 1 | joint_damping | 97% | yes |" in doc and f"{rms(nominal):.4f}" in doc
     assert "**Data checks**" in doc and "- FR_contact should be 0/1 flags" in doc
+    # how it decided: the decisions the diagnosis reports, not the other searches'
+    assert "1. joint_damping added (shared): explains 97%" in doc and "another chain" not in doc
     # --limits: what the log could miss, the effects whose whole realistic range it shows left out
     assert "- joint_friction value: shown from 0.25 N m, realistic values it could miss: 0.1..0.25" in doc
     assert "armature" not in doc.split("**What this log could miss**")[1]

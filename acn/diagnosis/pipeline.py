@@ -31,12 +31,14 @@ from acn.measurements.data import Measurements
 from acn.diagnosis.accelerometer import Accelerometer, read_accelerometer
 from acn.diagnosis.clock import StageClock
 from acn.diagnosis.compare import Comparison, compare, floor_of, informative_horizon
+from acn.diagnosis.decisions import Decision, tracing
 from acn.diagnosis.halves import HalfFits, fit_halves
 from acn.diagnosis.heldout import structured_share
 from acn.diagnosis.limits import Limit, limits
 from acn.diagnosis.pairing import action_row
-from acn.diagnosis.policy import (THRESHOLDS, Thresholds, add_effect, auto, does_not_hold, finer_look, fit_over_steps,
-                                  floor_after, floor_says_noise, needs_finer_look, rank, refine_chain, ties_of, verdict)
+from acn.diagnosis.policy import (THRESHOLDS, Thresholds, add_effect, added_fits_noise, auto, finer_look, fit_over_steps,
+                                  floor_after, floor_says_noise, holds_on_halves, needs_finer_look, rank, refine_chain,
+                                  ties_of, verdict)
 from acn.diagnosis.problem import DiagnoseConfig, Problem, corrected, prepare
 from acn.diagnosis.rate import physics_rate
 from acn.diagnosis.results import Added, Candidate, Chain, names
@@ -69,6 +71,7 @@ class Diagnosis:
     accelerometer: Accelerometer | None = None  # how the logged accelerometer is read (``accelerometer``)
     limits: list[Limit] | None = None  # --limits: the smallest size of each effect not named it shows (``rule_out``)
     thresholds: Thresholds = THRESHOLDS  # the selection's, which the report judges by too
+    decisions: list[Decision] = field(default_factory=list)  # every decision of the selection, in order (``decisions``)
 
     @property
     def floor_mse(self) -> float:
@@ -125,8 +128,25 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
     ``check_data``: check the measurements' consistency first (off for synthetic ones);
     ``accelerometer``: how to read it (None: as the dataset states, else judged under ``model``
     and, where effects are added, again under the final model: where that judgement differs, the
-    diagnosis runs again with it, ``acn.diagnosis.accelerometer``); ``thresholds``: the selection's
-    (``policy``); ``clock``: times every stage (``Diagnosis.stages``)."""
+    diagnosis runs once more with it, ``acn.diagnosis.accelerometer``); ``thresholds``: the selection's
+    (``policy``); ``clock``: times every stage (``Diagnosis.stages``). The decisions of the run
+    reported are in ``Diagnosis.decisions``."""
+    clock = clock or StageClock()  # both runs' stages add up
+    while True:
+        with tracing() as trace:
+            result = _diagnose(data, model, cfg, add, automatic, progress, check_data, accelerometer, thresholds,
+                               clock)
+        if isinstance(result, Diagnosis):
+            result.decisions = trace.decisions
+            return result
+        accelerometer = result  # judged otherwise under the final model: once more, read as judged
+
+
+def _diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None, add: list[str], automatic: bool,
+              progress, check_data: bool, accelerometer: Accelerometer | None, thresholds: Thresholds,
+              clock: StageClock | None) -> Diagnosis | Accelerometer:
+    """One run of ``diagnose``: the Diagnosis, or where the accelerometer was judged with the model
+    and reads otherwise under the final model, that judgement (``diagnose`` runs again with it)."""
     cfg, t = cfg or DiagnoseConfig(), thresholds
     clock = clock or StageClock()
     for name in add:
@@ -179,6 +199,7 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
                               start=ranked.fit if ranked else None, t=t)
         if ranked is not None:  # the first effect named: what the first ranking cannot tell it from
             step.ties = ties_of(ranked, ranking, t=t)
+        added_fits_noise(step, t=t)  # a warning in the trace, which the report reads
         added.append(step)
         current, current_residual = step.after, step.judgement.residual_after
     chains: list[Chain] = []
@@ -199,8 +220,7 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
         if again.kind != accelerometer.kind:
             how = "at each instant" if again.kind == "instant" else "as the mean over the control step"
             say(f"with the effects added the accelerometer reads {how}: diagnosing again", None)
-            return diagnose(data, model, cfg, add, automatic, progress, check_data, accelerometer=again, thresholds=t,
-                            clock=clock)
+            return again
     t3 = time.perf_counter()
     v, reason, named = verdict(before, mse, floor_mse, ranking, added, automatic, set_aside, t=t)
     half_fits: list[HalfFits] = []
@@ -209,11 +229,7 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
         with clock.stage("halves"):
             half_fits = fit_halves(problem, added[-1].after.model, names(added), cfg)
         t3 = time.perf_counter()
-        if why := does_not_hold(half_fits, t=t):
-            v, named = "unexplained", ()
-            reason = (f"{structured_share(mse, floor_mse):.0%} of the error is structured (above the noise floor); "
-                      f"{' + '.join(names(added))} would explain it, but not alike on two halves of the episodes: "
-                      f"{why}")
+        v, reason, named = holds_on_halves((v, reason, named), half_fits, added, mse, floor_mse, t=t)
     reason += findings_note(findings, named)
     return Diagnosis(data.description, problem, before, judge_rows, floor, mse, where, ranking, added, v, reason,
                      seconds={"compare": t1 - t0, "rank": t2 - t1, "add": t3 - t2, "total": t3 - t0},

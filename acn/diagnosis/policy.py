@@ -80,12 +80,14 @@ from __future__ import annotations
 
 from collections.abc import Collection
 from dataclasses import dataclass, replace
+from enum import Enum
 
 import numpy as np
 
 from acn.diagnosis import heldout
 from acn.diagnosis.clock import StageClock
 from acn.diagnosis.compare import Comparison, compare, floor_of
+from acn.diagnosis.decisions import record, share, within
 from acn.diagnosis.fitting import (EffectFit, FreeParameters, final_fit, final_rows, finer_gains, fit_effect,
                                    multistep_refit, rank_rows, refittable, screen_rows)
 from acn.diagnosis.granularity import GRANULARITIES, finer
@@ -166,7 +168,6 @@ class Thresholds:
 
 
 THRESHOLDS = Thresholds()
-TOO_SMALL = "fits a value below 3/4 of the smallest realistic magnitude"  # implausible's reason for too_small
 
 
 # ----- judging a candidate ----------------------------------------------------------------------
@@ -249,26 +250,43 @@ def too_large(fit: EffectFit, t: Thresholds = THRESHOLDS) -> list[str]:
     return [name for name, dev, _, largest in _magnitudes(fit) if dev > t.largest_factor * largest]
 
 
-def implausible(fit: EffectFit, t: Thresholds = THRESHOLDS) -> str:
-    """Why a fitted effect cannot be the explanation ("" if it can): a value pushed against a
-    bound, or more than twice the largest magnitude real robots show, stands in for something
-    else (joint springs fit as damping 2.5 N m s/rad or a derivative gain x 2.8); one below 3/4
-    of the smallest realistic magnitude is fitting noise or another effect's leftovers (sensor
-    noise in joint readings biases the contact forces a re-simulation starts with, and encoder
-    offsets of a few mrad fit that). Values the measurements contradict without simulation
-    (``EffectTraits.check``: a measured frame that lifts the stance feet off the ground) stand in for
-    something else too."""
+class Plausibility(Enum):
+    """What a fitted value's size says (``plausibility``)."""
+
+    PLAUSIBLE = "plausible"
+    CONTRADICTED = "contradicted by the measurements"  # ``EffectTraits.check``
+    AT_BOUND = "at a bound"                            # ``at_bound``
+    TOO_LARGE = "too large"                            # ``too_large``
+    TOO_SMALL = "too small"                            # ``too_small``
+
+
+def plausibility(fit: EffectFit, t: Thresholds = THRESHOLDS) -> tuple[Plausibility, str]:
+    """Whether a fitted effect can be the explanation, and why not in words ("" where it can): a
+    value pushed against a bound, or more than twice the largest magnitude real robots show,
+    stands in for something else (joint springs fit as damping 2.5 N m s/rad or a derivative gain
+    x 2.8); one below 3/4 of the smallest realistic magnitude is fitting noise or another effect's
+    leftovers (sensor noise in joint readings biases the contact forces a re-simulation starts
+    with, and encoder offsets of a few mrad fit that). Values the measurements contradict without
+    simulation (``EffectTraits.check``: a measured frame that lifts the stance feet off the ground)
+    stand in for something else too."""
     if fit.contradicted:
-        return fit.contradicted
+        return Plausibility.CONTRADICTED, fit.contradicted
     stuck = at_bound(fit, t=t)
     if stuck:
-        return f"needs {', '.join(stuck)} at the bound of its range"
+        return Plausibility.AT_BOUND, f"needs {', '.join(stuck)} at the bound of its range"
     large = too_large(fit, t=t)
     if large:
-        return f"needs {', '.join(large)} beyond {t.largest_factor:g}x the largest realistic magnitude"
+        return Plausibility.TOO_LARGE, \
+            f"needs {', '.join(large)} beyond {t.largest_factor:g}x the largest realistic magnitude"
     if too_small(fit, t=t):
-        return TOO_SMALL
-    return ""
+        return Plausibility.TOO_SMALL, \
+            f"fits a value below {t.smallest_share:.0%} of the smallest realistic magnitude"
+    return Plausibility.PLAUSIBLE, ""
+
+
+def implausible(fit: EffectFit, t: Thresholds = THRESHOLDS) -> str:
+    """Why a fitted effect cannot be the explanation ("" if it can): ``plausibility``'s words."""
+    return plausibility(fit, t=t)[1]
 
 
 # ----- fitting the noise --------------------------------------------------------------------
@@ -302,10 +320,10 @@ def doubt(c: Candidate, t: Thresholds = THRESHOLDS) -> str:
 
 
 def fits_noise_by_size(c: Candidate, t: Thresholds = THRESHOLDS) -> bool:
-    """Whether ``c`` is significant and set aside only for its size (``implausible`` is
-    ``TOO_SMALL``: not contradicted, not at a bound, not too large): it fits noise or another
-    effect's leftovers, and ``noise_fitted`` counts what it removes as noise."""
-    return c.judgement.significant and implausible(c.fit, t=t) == TOO_SMALL
+    """Whether ``c`` is significant and set aside only for its size (``Plausibility.TOO_SMALL``:
+    not contradicted, not at a bound, not too large): it fits noise or another effect's
+    leftovers, and ``noise_fitted`` counts what it removes as noise."""
+    return c.judgement.significant and plausibility(c.fit, t=t)[0] is Plausibility.TOO_SMALL
 
 
 def short_lived(c: Candidate, t: Thresholds = THRESHOLDS) -> bool:
@@ -385,7 +403,8 @@ def rank(problem: Problem, model: Model, cfg: DiagnoseConfig, judge_rows: np.nda
                              max_iter=cfg.rank_iterations, refit=refittable(model), scan=False)
             c = candidate(problem, fit, judge_rows, base_residual, t=t)
         name, fit = c.name, c.fit
-        if traits(name).fit_over_steps and c.judgement.significant and implausible(fit, t=t) not in ("", TOO_SMALL):
+        if (traits(name).fit_over_steps and c.judgement.significant
+                and plausibility(fit, t=t)[0] not in (Plausibility.PLAUSIBLE, Plausibility.TOO_SMALL)):
             ahead = over_steps_from_realistic(problem, model, fit, rows, t=t)
             c = c if ahead is fit else candidate(problem, ahead, judge_rows, base_residual, t=t)
         out.append(c)
@@ -452,6 +471,12 @@ def longer_gains(horizon: LongestHorizon, candidates: list[Candidate], until_one
     for c in candidates:
         if c.longer_gain is None:
             c.longer_gain = horizon.gain(c.fit.model)
+            if why := one_step_only(c, t=t):
+                beside = " + ".join(e.name for e in horizon.model.effects)
+                ranked = f"{c.name} ranked last" + (f" beside {beside}" if beside else "")
+                record("one_step_only", "ranked last", f"{ranked}: it {why}", effect=c.name, beside=beside,
+                       longest_horizon_removed=c.longer_gain, horizon=horizon.steps,
+                       reading_only=traits(c.name).reading_only, reading_tolerance=t.reading_tolerance)
         if until_one_passes and not one_step_only(c, t=t):
             break
 
@@ -507,6 +532,14 @@ def uneven(horizon: LongestHorizon, ranking: list[Candidate], t: Thresholds = TH
     best = max(pool, key=lambda c: c.longer_gain, default=None)
     if best is not None and best.longer_gain >= t.large_improvement:
         best.judgement = replace(best.judgement, significant=True, by_longest=True)
+        record("uneven", "significant", (
+            f"{best.name} is significant by its {horizon.steps}-step prediction: it removes "
+            f"{share(best.longer_gain)} of that open-loop error (at least {share(t.large_improvement)}), "
+            f"at one step {share(best.judgement.removed)} (z {best.judgement.z:.1f}; at least "
+            f"{share(t.min_improvement)} and z {t.significance_z:g} there)"),
+            effect=best.name, longest_horizon_removed=best.longer_gain, large_improvement=t.large_improvement,
+            removed=best.judgement.removed, z=best.judgement.z, min_improvement=t.min_improvement,
+            significance_z=t.significance_z, horizon=horizon.steps)
 
 
 def prefer_simpler(ranking: list[Candidate], horizon: LongestHorizon | None = None,
@@ -541,7 +574,8 @@ def prefer_simpler(ranking: list[Candidate], horizon: LongestHorizon | None = No
         if len(c.fit.x) >= len(best.fit.x) or not c.judgement.significant:
             continue
         close = c.judgement.removed >= t.parsimony_share * best.judgement.removed
-        gives_way = not better_at_one_step(best, c, t=t)
+        z = paired_z(c.judgement.row_errors - best.judgement.row_errors)
+        gives_way, margin = not better_at_one_step(best, c, t=t), None
         if not gives_way:  # the richer one predicts one step significantly better: and further?
             margin = longer_margin(horizon, best, c, t=t)
             gives_way = (margin is not None and margin <= 0.0) or (
@@ -549,6 +583,20 @@ def prefer_simpler(ranking: list[Candidate], horizon: LongestHorizon | None = No
         if gives_way:
             out = [x for x in ranking if x is not c]
             out.insert(out.index(best), c)
+            ahead = f"{c.name} ({len(c.fit.x)} parameters) goes before {best.name} ({len(best.fit.x)})"
+            if margin is None:
+                why = f"{best.name} predicts the held-out one step better by z {z:.1f} only (at least {t.parsimony_z:g})"
+            elif margin <= 0.0:
+                why = (f"{best.name} predicts one step better (z {z:.1f}) but removes no more of the longest-horizon "
+                       f"error ({share(margin)} more)")
+            else:
+                why = (f"it removes {share(c.judgement.removed)} of the one-step error against {share(best.judgement.removed)} "
+                       f"(close: at least {share(t.parsimony_share)} of it), and {best.name} removes only {share(margin)} "
+                       f"more of the longest-horizon error (at least {share(t.longer_margin)} to keep its place)")
+            record("prefer_simpler", f"{c.name} before {best.name}", f"{ahead}: {why}", simpler=c.name,
+                   richer=best.name, simpler_removed=c.judgement.removed, richer_removed=best.judgement.removed,
+                   z=z, parsimony_z=t.parsimony_z, parsimony_share=t.parsimony_share, longer_margin=margin,
+                   least_longer_margin=t.longer_margin)
             return out
     return ranking
 
@@ -648,6 +696,11 @@ def prefer_longer(ranking: list[Candidate], t: Thresholds = THRESHOLDS) -> list[
         return ranking
     out = [x for x in ranking if x is not pick]
     out.insert(out.index(best), pick)
+    record("prefer_longer", f"{pick.name} before {best.name}", (
+        f"{pick.name} goes before {best.name}: the held-out one step cannot tell them apart, and it removes "
+        f"{share(pick.longer_gain)} of the longest-horizon open-loop error against {share(best.longer_gain)} "
+        f"(at least {share(t.longer_margin)} more)"), first=pick.name, second=best.name,
+        first_longer=pick.longer_gain, second_longer=best.longer_gain, longer_margin=t.longer_margin)
     return out
 
 
@@ -703,6 +756,14 @@ def finer_look(problem: Problem, model: Model, cfg: DiagnoseConfig, judge_rows: 
         if (new.judgement.significant and not implausible(fit, t=t) and new.score > c.score
                 and new.judgement.removed >= least_removed):
             out[out.index(c)], changed = new, True
+            record("finer_look", f"{c.name} per {g}", (
+                f"{c.name} fitted per {g} in place of one value for every joint: it removes "
+                f"{share(new.judgement.removed)} of the one-step error (z {new.judgement.z:.1f}) against "
+                f"{share(c.judgement.removed)}, and scores {new.score:.3f} against {c.score:.3f} "
+                f"({t.price_per_parameter:g} per parameter)"), effect=c.name, granularity=g,
+                removed=new.judgement.removed, shared_removed=c.judgement.removed, z=new.judgement.z,
+                score=new.score, shared_score=c.score, price_per_parameter=t.price_per_parameter,
+                least_removed=least_removed)
     return order(problem, model, cfg, out, progress, t=t) if changed else ranking
 
 
@@ -769,10 +830,20 @@ def choose_fit(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, j
         if best is None or judge(problem, fit.model, judge_rows, best[1].residual_after,
                                  reference_mse=best[1].mse_before, t=t).significant:
             chosen.append((fit, judge(problem, fit.model, judge_rows, base_residual, t=t)))
+    fell_back = []  # finer final fits found implausible, finest first
     for i in range(len(chosen) - 1, -1, -1):
         fit = final_fit(problem, model, chosen[i][0], cfg)
-        if i == 0 or not implausible(fit, t=t):
+        if i == 0 or not (why := implausible(fit, t=t)):
             break
+        fell_back.append(f"per {fit.granularity} {why}")
+    if len(granularities) > 1:
+        beat = [f.granularity for f, _ in chosen]
+        said = f"{name} fitted {'as ' if fit.granularity == 'shared' else 'per '}{fit.granularity}"
+        said += (f": per {', then per '.join(beat[1:])} predicted the held-out rows significantly better than coarser"
+                 if len(beat) > 1 else ": no finer granularity predicts the held-out rows significantly better")
+        said += "".join(f"; its final fit {x}" for x in fell_back)
+        record("choose_fit", f"{name} {fit.granularity}", said, effect=name, granularity=fit.granularity,
+               granularities=", ".join(granularities), significant_finer=", ".join(beat[1:]), fell_back=len(fell_back))
     return fit, judge(problem, fit.model, judge_rows, base_residual, t=t)
 
 
@@ -781,6 +852,21 @@ def add_effect(problem: Problem, model: Model, name: str, cfg: DiagnoseConfig, j
                t: Thresholds = THRESHOLDS) -> Added:
     fit, judgement = choose_fit(problem, model, name, cfg, judge_rows, base_residual, start, t=t)
     return Added(fit, judgement, before, compare(problem, fit.model, cfg))
+
+
+def added_fits_noise(step: Added, t: Thresholds = THRESHOLDS) -> str:
+    """Why an effect the user added (``--add``) may fit what sensor noise in the measured start
+    states does ("" where it does not): ``fits_noise`` on its final fit, by the effect's own rule
+    (a reading-only effect may raise the longest-horizon error by ``reading_tolerance``), the rule
+    ``--auto`` sets such an effect aside by."""
+    g = longer_gain(step)
+    if not fits_noise(g, step.fit.effect, t=t):
+        return ""
+    why = (f"it raises the open-loop error at the longest horizon ({-g:+.0%}): it may fit what sensor noise in the "
+           "measured start states does rather than a physical effect")
+    record("one_step_only", "warned", f"{step.name} (--add): {why}", effect=step.name, longest_horizon_removed=g,
+           reading_only=traits(step.name).reading_only, reading_tolerance=t.reading_tolerance)
+    return why
 
 
 def significant(step: Added, t: Thresholds = THRESHOLDS) -> bool:
@@ -848,9 +934,27 @@ def nothing_left(current: Comparison, mse: float, start: Comparison, start_mse: 
     ``unneeded`` any more: all of what is left, noise included, is under ``auto_min_share`` of
     the structured error ``start`` had (one-step error ``start_mse``), and of its open-loop error
     at the longest horizon. --auto stops there: no ranking, finer look or other start."""
+    one, longer = left_over(current, mse, start, start_mse, floor_mse)
+    return one < t.auto_min_share and longer < t.auto_min_share
+
+
+def left_over(current: Comparison, mse: float, start: Comparison, start_mse: float, floor_mse: float) -> tuple[float, float]:
+    """What ``nothing_left`` compares: the one-step error ``mse`` left beside ``current`` as a share of
+    the structured error ``start`` had (one-step error ``start_mse``), and the share of ``start``'s
+    open-loop error at the longest horizon left."""
     one = mse / (start_mse - floor_mse) if start_mse > floor_mse else 0.0
     longer = 1.0 - removed_at(start, current, start.check) if start.check > 1 else 0.0
-    return one < t.auto_min_share and longer < t.auto_min_share
+    return one, longer
+
+
+def _record_nothing_left(current: Comparison, mse: float, start: Comparison, start_mse: float, floor_mse: float,
+                         then: str, t: Thresholds = THRESHOLDS) -> None:
+    one, longer = left_over(current, mse, start, start_mse, floor_mse)
+    record("nothing_left", then, (
+        f"{then}: what is left, {share(one)} of the error above the noise floor the diagnosis started from and "
+        f"{share(longer)} of its {start.check}-step open-loop error, is under {share(t.auto_min_share)} of each: "
+        "no effect added beside it could be needed"), one_step_left=one, longest_horizon_left=longer,
+        auto_min_share=t.auto_min_share)
 
 
 def refine_chain(problem: Problem, before: Comparison, steps: list[Added], cfg: DiagnoseConfig,
@@ -967,7 +1071,7 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
     current, residual = first, base_residual
     start_mse = float(np.mean(base_residual ** 2))
     clock = clock or StageClock()
-    while len(names(added)) < cfg.auto_max and len(added) < 2 * cfg.auto_max:  # (refinements: finite, bounded)
+    while len(names(added)) < cfg.auto_max and len(added) < 2 * cfg.auto_max:  # the --auto-max bound  # (refinements: finite, bounded)
         open_ = [c for c in ranking if c.name not in names(added) or c.name not in kept_coarse  # refinements too
                  and finer(c.fit.granularity, held(current.model, c.name))]
         open_ = [c for c in open_ if c.name not in noise_fits | set(set_aside)]
@@ -986,6 +1090,7 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
                 ranking = looked_finer
                 continue
         if best is None:
+            _record_no_candidate(candidates, open_, floor_mse, t=t)
             break
         if progress:
             progress(f"adding {best.name}", None)
@@ -993,24 +1098,41 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
             step = add_effect(problem, current.model, best.name, cfg, judge_rows, residual, current, start=best.fit,
                               t=t)
         step.ties = ties_of(best, open_, t=t)
-        little = too_little(step.judgement, longer_gain(step), floor_mse, t=t)
-        why = final_doubt(step, t=t) or (f"its final fit {little}" if little else "") \
-            or unneeded(step, first, start_mse, floor_mse, t=t)
-        if best.name in names(added) and (why or not step.refines
-                                          or fits_noise(longer_gain(step), step.fit.effect, t=t)):
+        rule, why = "final_doubt", final_doubt(step, t=t)
+        if not why and (little := too_little(step.judgement, longer_gain(step), floor_mse, t=t)):
+            rule, why = "too_little", f"its final fit {little}"
+        if not why:
+            rule, why = "unneeded", unneeded(step, first, start_mse, floor_mse, t=t)
+        noise = fits_noise(longer_gain(step), step.fit.effect, t=t)
+        figures = dict(effect=best.name, granularity=step.fit.granularity, explained=step.judgement.explained(floor_mse),
+                       removed=step.judgement.removed, z=step.judgement.z, longest_horizon_removed=longer_gain(step))
+        if best.name in names(added) and (why or not step.refines or noise):
             kept_coarse.add(best.name)  # its finer fit did not hold: the effect stays as added
+            record("greedy", f"{best.name} kept {held(current.model, best.name)}", (
+                f"{best.name} stays {held(current.model, best.name)}: fitted per {step.fit.granularity} beside the "
+                f"effects added after it, {why or 'it lowers the one-step error only'}"), **figures)
             continue
         if why:
             set_aside[best.name] = why
+            record(rule, "set aside", f"{best.name} set aside: {why}", **figures)
             if progress:
                 progress(f"{best.name} set aside: {why}", None)
             continue
-        if fits_noise(longer_gain(step), step.fit.effect, t=t):
+        if noise:
             noise_fits.add(best.name)  # one_step_only, found on the refitted effect: try the next one
+            record("one_step_only", "set aside", (
+                f"{best.name} set aside: its final fit lowers the one-step error only (open-loop error at the longest "
+                f"horizon {share(-(longer_gain(step) or 0.0))}): it fits what sensor noise in the measured start "
+                "states does"), **figures)
             continue
         added.append(step)
+        record("greedy", f"{best.name} {'refined' if step.refines else 'added'}", _added_sentence(step, floor_mse, t),
+               **figures, auto_min_explained=t.auto_min_explained, auto_min_removed=t.auto_min_removed,
+               auto_min_longer=t.auto_min_longer, significance_z=t.significance_z,
+               large_improvement=t.large_improvement)
         current, residual = step.after, step.judgement.residual_after
         if nothing_left(current, step.judgement.mse_after, first, start_mse, floor_mse, t=t):
+            _record_nothing_left(current, step.judgement.mse_after, first, start_mse, floor_mse, "stopped", t=t)
             break
         if len(names(added)) < cfg.auto_max:
             with clock.stage(f"rank beside {' + '.join(names(added))}"):
@@ -1020,7 +1142,41 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
                 if len(added) > 1 and coarse:  # fit them finer beside the effects added after them
                     ranking = finer_look(problem, current.model, cfg, judge_rows, residual, ranking,
                                          progress=progress, only=coarse, t=t)
+    else:
+        record("greedy", "stopped", f"stopped at the --auto-max bound ({cfg.auto_max} effects): no more were tried",
+               auto_max=cfg.auto_max)
     return added, set_aside
+
+
+def _added_sentence(step: Added, floor_mse: float, t: Thresholds = THRESHOLDS) -> str:
+    """Why ``greedy`` added ``step``, with every threshold it passed."""
+    j, longer = step.judgement, longer_gain(step)
+    verb = f"refined ({step.refines} -> {step.fit.granularity})" if step.refines else f"added ({step.fit.granularity})"
+    said = (f"{step.name} {verb}: explains {share(j.explained(floor_mse))} of the error above the noise floor "
+            f"(at least {share(t.auto_min_explained)}), removes {share(j.removed)} of the one-step error (at least "
+            f"{share(t.auto_min_removed)}, or {share(t.auto_min_longer)} of the longest-horizon error)")
+    said += (f", z {j.z:.1f} (at least {t.significance_z:g})" if j.significant else
+             f", significant by the longest horizon (at least {share(t.large_improvement)} of it removed)")
+    if longer is not None:
+        said += f", {step.before.check}-step open-loop error {-longer:+.0%}"
+    return said
+
+
+def _record_no_candidate(candidates: list[Candidate], open_: list[Candidate], floor_mse: float,
+                         t: Thresholds = THRESHOLDS) -> None:
+    """``greedy`` stops: no significant, plausible candidate is left that removes more than the noise."""
+    if candidates:
+        c = candidates[0]
+        why = f"the best, {c.name}, {too_little(c.judgement, c.longer_gain, floor_mse, t=t)}"
+    elif open_:
+        c = open_[0]
+        why = (f"the best, {c.name}, {doubt(c, t=t)}" if c.judgement.significant else
+               f"the best, {c.name}, improves held-out predictions by {c.judgement.z:.1f} standard errors "
+               f"(removes {share(c.judgement.removed)})")
+    else:
+        why = "every candidate is added or set aside"
+    record("greedy", "stopped", f"stopped: no candidate left is significant, plausible and more than the noise: {why}",
+           candidates_left=len(open_), significant_plausible=len(candidates))
 
 
 def improvement(new: list[Added], old: list[Added]) -> dict:
@@ -1135,6 +1291,8 @@ def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge
     tried = [kept]
     if nothing_left(chain[-1].after, chain[-1].judgement.mse_after, first, float(np.mean(base_residual ** 2)),
                     floor_mse, t=t):
+        _record_nothing_left(chain[-1].after, chain[-1].judgement.mse_after, first, float(np.mean(base_residual ** 2)),
+                             floor_mse, "no other start tried", t=t)
         return kept.steps, tried  # no other chain can explain a share of the error this one leaves
     pool = [c for c in ranking if c.judgement.significant and not doubt(c, t=t)]
     shortlist = replace(cfg, candidates=tuple(c.name for c in pool[:t.shortlist]),
@@ -1142,14 +1300,16 @@ def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge
     for c in [c for c in pool if c.name != chain[0].name][:cfg.auto_alternatives]:
         if progress:
             progress(f"trying {c.name} first", None)
-        steps, _ = greedy(problem, first, shortlist, judge_rows, base_residual, floor_mse, [c], progress, t=t)
-        if steps and steps[0].name == c.name:  # its ties in the first ranking, which this chain started past
-            steps[0].ties = ties_of(c, ranking, t=t)
-        steps = revisit(problem, first, cfg, judge_rows, base_residual, steps, progress, t=t)
+        with within(f"chain started with {c.name}"):
+            steps, _ = greedy(problem, first, shortlist, judge_rows, base_residual, floor_mse, [c], progress, t=t)
+            if steps and steps[0].name == c.name:  # its ties in the first ranking, which this chain started past
+                steps[0].ties = ties_of(c, ranking, t=t)
+            steps = revisit(problem, first, cfg, judge_rows, base_residual, steps, progress, t=t)
         other = Chain(steps, c.name)
         tried.append(other)
         if not steps:
             other.why = f"{c.name} is not added on its own final fit"
+            record("other_starts", "nothing added", f"the chain started with {other.why}", start=c.name)
             continue
         better, worse = horizon_votes(improvement(steps, kept.steps), t=t)
         if better or not worse:  # it may replace the kept chain: compare the two as they would be reported
@@ -1159,16 +1319,21 @@ def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge
         # chain that predicts better by the same rule keeps its values.
         same = " (the same effects, fitted otherwise)" if sorted(other.names) == sorted(kept.names) else ""
         other.versus = v = improvement(steps, kept.steps)
-        gains = f"one-step error {-v['one_step_removed']:+.1%} (z {v['z']:.1f})"
-        gains += "".join(f", {h}-step error {-share:+.0%}" for h, share in v["horizons_removed"].items())
-        gains += f" against {kept.label}{same}"
+        gains = f"{_versus_text(v)} against {kept.label}{same}"
         better = predicts_better(v, t=t)
+        figures = dict(start=c.name, chain=other.label, against=kept.label, one_step_removed=v["one_step_removed"],
+                       z=v["z"], longest_horizon_removed=v["longest_horizon_removed"], parsimony_z=t.parsimony_z,
+                       auto_min_removed=t.auto_min_removed, auto_min_longer=t.auto_min_longer)
         if better or (len(other.names) < len(kept.names) and predicts_as_well(v, t=t)):
             kept.kept, kept.why = False, f"replaced by the chain started with {c.name}"
             said = "predicts better" if better else "predicts as well with fewer effects"
             kept, other.kept, other.why = other, True, f"{said}: {gains}"
+            record("predicts_better" if better else "predicts_as_well", f"{other.label} kept",
+                   f"the chain started with {c.name}, {other.label}, is kept: it {said}: {gains}", **figures)
         else:
             other.why = f"not clearly better: {gains}"
+            record("predicts_better", f"{kept.label} kept",
+                   f"the chain started with {c.name}, {other.label}, is not clearly better: {gains}", **figures)
     return kept.steps, tried
 
 
@@ -1217,11 +1382,23 @@ def revisit(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows
         residual = problem.residual_of(others.sim_config(problem.control), judge_rows)
         if progress:
             progress(f"judging {a.name} again beside the other added effects", None)
-        again = rank(problem, others, replace(cfg, candidates=(a.name, *simpler)), judge_rows, residual, t=t)
+        with within(f"revisit {a.name}"):
+            again = rank(problem, others, replace(cfg, candidates=(a.name, *simpler)), judge_rows, residual, t=t)
         top = next((c for c in again if c.judgement.significant and not doubt(c, t=t)), None)
         chosen[i] = top.name if top is not None else None
+        if top is None:
+            record("revisit", f"{a.name} left out", (
+                f"{a.name} judged again beside the other added effects: neither it nor a simpler candidate is "
+                "significant and plausible there"), effect=a.name, simpler=", ".join(simpler))
+        elif top.name != a.name:
+            record("revisit", f"{top.name} in {a.name}'s place", (
+                f"{a.name} judged again beside the other added effects: the simpler {top.name} goes first there"),
+                effect=a.name, simpler=", ".join(simpler), instead=top.name)
     kept = [n for n in chosen if n is not None]
     if kept == effects or not kept:
+        if not kept:
+            record("revisit", "kept as added", "every added effect would be left out (each stands in for another): "
+                   "the chain stays as added", effects=" + ".join(effects))
         return added
     chain, current, residual = [], first, base_residual
     for name in kept:
@@ -1232,11 +1409,27 @@ def revisit(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows
         chain.append(step)
         current, residual = step.after, step.judgement.residual_after
     holds = predicts_as_well if len(kept) < len(effects) else predicts_no_worse
-    if not holds(improvement(chain, added), t=t):
+    v = improvement(chain, added)
+    figures = dict(one_step_removed=v["one_step_removed"], z=v["z"], longest_horizon_removed=v["longest_horizon_removed"],
+                   auto_min_removed=t.auto_min_removed, auto_min_longer=t.auto_min_longer, parsimony_z=t.parsimony_z)
+    if not holds(v, t=t):
         if progress:
             progress(f"{' + '.join(names(chain))} predicts worse: kept {' + '.join(effects)}", None)
+        record(holds.__name__, "kept as added", (
+            f"{' + '.join(names(chain))} predicts the held-out rows worse than {' + '.join(effects)} "
+            f"({_versus_text(v)}): kept as added"), **figures)
         return added
+    record(holds.__name__, f"{' + '.join(names(chain))} instead", (
+        f"{' + '.join(names(chain))} in place of {' + '.join(effects)}: it predicts "
+        f"{'as well with fewer effects' if len(kept) < len(effects) else 'no horizon worse'} ({_versus_text(v)})"),
+        **figures)
     return chain
+
+
+def _versus_text(v: dict) -> str:
+    """An ``improvement`` in words: the one-step error's change with its z, then each open-loop horizon's."""
+    said = f"one-step error {-v['one_step_removed']:+.1%} (z {v['z']:.1f})"
+    return said + "".join(f", {h}-step error {-removed:+.0%}" for h, removed in v["horizons_removed"].items())
 
 
 def does_not_hold(fits: list[HalfFits], t: Thresholds = THRESHOLDS) -> str:
@@ -1253,16 +1446,42 @@ def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Cand
             t: Thresholds = THRESHOLDS) -> tuple[str, str, tuple[str, ...]]:
     """(verdict, reason in words, the effects it names); see module docstring. ``set_aside``:
     candidates ``--auto`` did not add on their final fit (name -> why); never named."""
-    set_aside = set_aside or {}
+    v, reason, named = _verdict(before, mse, floor_mse, ranking, added, automatic, set_aside or {}, t)
+    record("verdict", v, f"verdict {v}: {reason}", named=" + ".join(named), headline=before.headline, exact=t.exact,
+           structured=structured_share(mse, floor_mse), structured_share=t.structured_share,
+           effect_share=t.effect_share)
+    return v, reason, named
+
+
+def holds_on_halves(judged: tuple[str, str, tuple[str, ...]], fits: list[HalfFits], added: list[Added], mse: float,
+                    floor_mse: float, t: Thresholds = THRESHOLDS) -> tuple[str, str, tuple[str, ...]]:
+    """The verdict ``judged`` (``verdict``'s) once the added effects are fitted on two halves of the
+    episodes (``fits``): where they do not agree (``does_not_hold``), the effects only paper over
+    structure the catalogue lacks and the verdict is ``unexplained``."""
+    why = does_not_hold(fits, t=t)
+    worst = max((f.chi2 for f in fits), default=0.0)
+    if not why:
+        record("does_not_hold", "holds", (
+            f"the fits of {' + '.join(names(added))} on two halves of the episodes agree within their standard errors "
+            f"(chi^2 at most its {t.halves_z:g}-sigma quantile)"), largest_chi2=worst, halves_z=t.halves_z)
+        return judged
+    reason = (f"{structured_share(mse, floor_mse):.0%} of the error is structured (above the noise floor); "
+              f"{' + '.join(names(added))} would explain it, but not alike on two halves of the episodes: {why}")
+    record("does_not_hold", "unexplained", f"verdict unexplained: {reason}", largest_chi2=worst, halves_z=t.halves_z)
+    return "unexplained", reason, ()
+
+
+def _verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Candidate], added: list[Added],
+             automatic: bool, set_aside: dict[str, str], t: Thresholds) -> tuple[str, str, tuple[str, ...]]:
     if before.headline < t.exact:
         return "none", f"the model reproduces the measurements (headline error {before.headline:.2g})", ()
     structured = 1.0 - floor_mse / mse if mse > 0 else 0.0
     if automatic and added:
-        share = explained_share(mse, added[-1].judgement.mse_after, floor_mse)
+        part = explained_share(mse, added[-1].judgement.mse_after, floor_mse)
         effects = tuple(names(added))
         explain = f"{' + '.join(effects)} explains" if len(effects) == 1 else f"{' + '.join(effects)} explain"
-        if share >= t.effect_share:
-            return "effect", f"{explain} {share:.0%} of the error above the noise floor", \
+        if part >= t.effect_share:
+            return "effect", f"{explain} {part:.0%} of the error above the noise floor", \
                 effects
         after = added[-1].judgement.mse_after
         left = 1.0 - floor_mse / after if after > 0 else 0.0
@@ -1273,7 +1492,7 @@ def verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Cand
                    f"from the state and actions)" if structured < t.structured_share else
                    f"only {max(left, 0):.0%} of the one-step error left is predictable from the state and actions, "
                    f"against {structured:.0%} before")
-            return "effect", (f"{explain} {share:.0%} of the error above the noise floor{gain}, and what is "
+            return "effect", (f"{explain} {part:.0%} of the error above the noise floor{gain}, and what is "
                               f"left matches within the noise: {why}"), effects
     plausible = [c for c in ranking if c.judgement.significant and not doubt(c, t=t) and c.name not in set_aside]
     top = plausible[0] if plausible else None

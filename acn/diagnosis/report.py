@@ -27,7 +27,9 @@ JSON keys (the machine-readable contract):
   (share 0..1 of the error above the noise floor), ``removed`` (share of the whole error),
   ``z``, ``significant``, ``significant_by`` (``"one step"``, ``"longest horizon"``: ``policy.uneven``;
   null when not significant), ``score``, ``implausible`` (why it cannot be the explanation, "" if it
-  can: ``policy.doubt``), ``longest_horizon_removed`` (share of the open-loop error at the
+  can: ``policy.doubt``), ``plausibility`` (what its fitted values' size says:
+  ``policy.Plausibility``, ``"plausible"``, ``"contradicted by the measurements"``, ``"at a bound"``,
+  ``"too large"``, ``"too small"``), ``longest_horizon_removed`` (share of the open-loop error at the
   check's horizon, ``step.check_horizon``, it removes; null where not checked: ``policy.screen``);
 - ``added`` (with ``--add`` / ``--auto``): in order, ``name``, ``params``, ``granularity``,
   ``refines`` (the granularity of an effect added before and fitted finer in this step, else
@@ -48,6 +50,12 @@ JSON keys (the machine-readable contract):
 - ``halves`` (``--auto`` with effects added, else []): each added effect fitted again on two
   halves of the episodes (``acn.diagnosis.halves``): ``effect``, ``parameters``, ``first``,
   ``second``, ``stderr_first``, ``stderr_second``, ``chi2``;
+- ``decisions``: every decision of the selection in the order made (``acn.diagnosis.decisions``):
+  ``rule`` (the deciding function of ``policy``), ``inputs`` (the figures and thresholds it
+  compared, by name), ``outcome`` (a few words), ``sentence`` (the same in words, from those
+  inputs), ``within`` (the search: "" for the chain first built, "chain started with X", "revisit
+  X") and ``reported`` (one of the decisions that built and judged the model reported:
+  ``reported_decisions``; the report and ``acn-view`` show these);
 - ``seconds``: ``compare``, ``rank``, ``add`` (every stage after the ranking) and ``total``;
   ``stages``: every stage's wall time in the order run (``compare``, ``rank``, ``add EFFECT``,
   ``rank beside EFFECTS``, ``finer look``, ``revisit``, ``other starts``, ``final refit``,
@@ -75,13 +83,15 @@ from __future__ import annotations
 
 import html
 import json
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from acn.diagnosis.compare import Comparison, group_errors
 from acn.diagnosis.pipeline import Diagnosis
-from acn.diagnosis.policy import THRESHOLDS, Thresholds, doubt, fits_noise, significant, unidentified
+from acn.diagnosis.decisions import Decision
+from acn.diagnosis.policy import THRESHOLDS, Thresholds, doubt, plausibility, significant, unidentified
 from acn.diagnosis.results import Added, Candidate, longer_gain
 from acn.diagnosis.traits import traits
 from acn.diagnosis.transfer import closer_by, table as closed_loop_table
@@ -121,13 +131,21 @@ def _free(fit, t: Thresholds = THRESHOLDS) -> list[dict]:
             for n, v, e in zip(fit.names, fit.x, fit.stderr)]
 
 
-def _noise_fit_text(a: Added, t: Thresholds = THRESHOLDS) -> str:
-    """A warning when an added effect (``--add``) lowers the one-step error only ("" otherwise)."""
-    g = longer_gain(a)
-    if not fits_noise(g, t=t):
-        return ""
-    return (f"it raises the open-loop error at the longest horizon ({-g:+.0%}): it may fit what sensor noise in "
-            "the measured start states does rather than a physical effect")
+def _noise_fit_text(a: Added, decisions: Sequence[Decision]) -> str:
+    """The warning the trace holds for an effect added with ``--add`` that lowers the one-step error
+    only (``policy.added_fits_noise``), "" where it holds none."""
+    warned = [x for x in decisions if x.rule == "one_step_only" and x.outcome == "warned"
+              and x.inputs.get("effect") == a.name]
+    return warned[-1].sentence.split(": ", 1)[1] if warned else ""
+
+
+def reported_decisions(d: Diagnosis) -> list[Decision]:
+    """The decisions that built and judged the model the diagnosis reports: those of the first
+    chain and the verdict (``within`` ""), and those of the chain that replaced it (``within``
+    "chain started with X"), in the order made; the other searches' are in the JSON."""
+    kept = next((c.start for c in d.chains if c.kept), None)
+    replaced_by = f"chain started with {kept}" if kept is not None and d.chains and not d.chains[0].kept else None
+    return [x for x in d.decisions if not x.within or x.within == replaced_by]
 
 
 def _kd(d: Diagnosis) -> float:
@@ -195,9 +213,9 @@ def _ties_json(a: Added) -> list[dict]:
              "longest_horizon_removed": None if c.longer_gain is None else round(c.longer_gain, 4)} for c in a.ties]
 
 
-def _notes(a: Added, kd: float, t: Thresholds = THRESHOLDS) -> list[str]:
-    """What the report says under an added effect besides its numbers."""
-    return [said for said in (_unidentified_text(a.fit, t), _noise_fit_text(a, t), _longer_text(a, t),
+def _notes(a: Added, kd: float, t: Thresholds = THRESHOLDS, decisions: Sequence[Decision] = ()) -> list[str]:
+    """What the report says under an added effect besides its numbers (``decisions``: the trace's)."""
+    return [said for said in (_unidentified_text(a.fit, t), _noise_fit_text(a, decisions), _longer_text(a, t),
                               _alike_text(a, kd, t), _ties_text(a)) if said]
 
 
@@ -263,7 +281,8 @@ def _candidate(c: Candidate, floor_mse: float, t: Thresholds = THRESHOLDS) -> di
             "free_parameters": _free(c.fit, t), "explained": round(j.explained(floor_mse), 4),
             "removed": round(j.removed, 4), "z": round(j.z, 2), "significant": j.significant,
             "significant_by": ("longest horizon" if j.by_longest else "one step") if j.significant else None,
-            "implausible": doubt(c, t=t), "score": round(c.score, 4),
+            "implausible": doubt(c, t=t), "plausibility": plausibility(c.fit, t=t)[0].value,
+            "score": round(c.score, 4),
             "longest_horizon_removed": None if c.longer_gain is None else round(c.longer_gain, 4)}
 
 
@@ -281,6 +300,11 @@ def _added(a: Added, floor_mse: float, kd: float, t: Thresholds = THRESHOLDS) ->
             "free_parameters": _free(a.fit, t), "error_before": _errors(a.before), "error_after": _errors(a.after),
             "headline_before": a.before.headline, "headline_after": a.after.headline,
             "explained": a.judgement.explained(floor_mse), "removed": a.judgement.removed}
+
+
+def _decisions_json(d: Diagnosis) -> list[dict]:
+    reported = {id(x) for x in reported_decisions(d)}
+    return [{**x.to_json(), "reported": id(x) in reported} for x in d.decisions]
 
 
 def to_json(d: Diagnosis) -> dict:
@@ -308,6 +332,7 @@ def to_json(d: Diagnosis) -> dict:
         "model": d.before.model.to_json(), "final_model": d.final.model.to_json(),
         "named_model": d.model.to_json(),
         "halves": [h.to_json() for h in d.halves],
+        "decisions": _decisions_json(d),
         "seconds": d.seconds, "stages": d.stages,
         "closed_loop": d.closed_loop,
         "limits": [x.to_json() for x in d.limits] if d.limits is not None else None,
@@ -368,7 +393,7 @@ def terminal(d: Diagnosis) -> str:
     out += [f"set aside by --auto: {name} {why}" for name, why in d.set_aside.items()]
     for a in d.added:
         out += ["", f"{_step(a)}: {a.fit.effect.to_json(a.fit.values)}"]
-        out += _notes(a, _kd(d), d.thresholds)
+        out += _notes(a, _kd(d), d.thresholds, d.decisions)
         out += [f"headline {a.before.headline:.4f} -> {a.after.headline:.4f}", error_table(a.before, a.after)]
     together = _together_text(d)
     out += ["", *together] if together else []
@@ -376,6 +401,9 @@ def terminal(d: Diagnosis) -> str:
         out += ["", "chains of effects tried by --auto (started with):"]
         out += [f"  {c.start}: {c.label}; {'KEPT, ' if c.kept else ''}{c.why}"
                 for c in d.chains]
+    decided = reported_decisions(d)
+    if decided:
+        out += ["", "how it decided:", *(f"  {x.sentence}" for x in decided)]
     out += ["", f"verdict: {d.verdict} ({d.reason})"]
     if d.limits:
         one = _one_joint(d.limits)
@@ -489,7 +517,7 @@ def html_text(d: Diagnosis) -> str:
         "</tr>" for c in d.ranking)
     added = "".join(f"<li>{html.escape(_step(a))} {html.escape(_params_text(a.fit, t=d.thresholds))}: headline "
                     f"{a.before.headline:.4f} &rarr; {a.after.headline:.4f}"
-                    + "".join(f"<br><i>{html.escape(t)}</i>" for t in _notes(a, _kd(d), d.thresholds))
+                    + "".join(f"<br><i>{html.escape(t)}</i>" for t in _notes(a, _kd(d), d.thresholds, d.decisions))
                     + "</li>"
                     for a in d.added) + "".join(f"<li><i>{html.escape(t)}</i></li>" for t in _together_text(d))
     chains = "".join(f"<li>started with {c.start}: <b>{html.escape(c.label)}</b>"
@@ -500,6 +528,10 @@ def html_text(d: Diagnosis) -> str:
                    + "".join(f"<li>{html.escape(f.message)}</li>" for f in d.data_checks) + "</ul>") if d.data_checks else ""
     if d.accelerometer and d.accelerometer.describe():
         checks_html += f"<p>{html.escape(d.accelerometer.describe())}.</p>"
+    decided = "".join(f"<li>{html.escape(x.sentence)}</li>" for x in reported_decisions(d))
+    decided_html = ("<h2>How it decided</h2><p>Each rule that decided the course of this diagnosis, in order, with "
+                    "the figures it compared and its threshold (every decision, the other searches' too, is in the "
+                    f"JSON's <code>decisions</code>):</p><ol>{decided}</ol>") if decided else ""
     body = f"""<!doctype html><html><head><meta charset="utf-8"><meta name="generator" content="{GENERATOR}"><title>acn-diagnose: {html.escape(d.measurements)}</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:4px 8px}}</style></head><body>
@@ -512,6 +544,7 @@ td,th{{border:1px solid #ccc;padding:4px 8px}}</style></head><body>
 <th>{d.before.check}-step error removed</th><th>parameters</th><th>set aside because</th></tr>{ranking}</table>
 {'<h2>Added</h2><ul>' + added + '</ul>' if added else ''}
 {'<p>Chains of effects tried by --auto (one effect can stand in for two):</p><ul>' + chains + '</ul>' if chains else ''}
+{decided_html}
 {_limits_html(d)}{loop_html}
 <h2>Plots</h2>{''.join(parts)}</body></html>"""
     return body

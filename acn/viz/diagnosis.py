@@ -19,7 +19,7 @@ not compared):
   ``effects/<k>_<name>`` (``effects/0_nominal`` first);
 - **a text panel** ``diagnosis`` (markdown): the model, the mean error per stage, what was not
   measured, and, with ``--diagnosis FILE.json`` (``acn-diagnose --json``), its verdict, reason,
-  ranking and where-summary.
+  ranking, where-summary and the decisions that led to the verdict.
 
 Every stage of one episode is re-simulated in one ``Resimulator.run`` call (one row per
 measured transition and stage, each row with its stage's model).
@@ -194,8 +194,9 @@ def model_markdown(name: str, model: Model, measurements: str, episode: int, sta
 
 
 def diagnosis_markdown(name: str, d: dict) -> str:
-    """The ``acn-diagnose --json`` part of the text panel: verdict, reason, where, ranking, added and,
-    with ``--limits``, what the log rules out."""
+    """The ``acn-diagnose --json`` part of the text panel: verdict, reason, where, ranking, added, the
+    decisions that led there (the JSON's ``decisions`` marked ``reported``) and, with ``--limits``,
+    what the log rules out."""
     rows = [f"| {k} | {c['name']} | {c['explained']:.0%} | {'yes' if c.get('significant') else 'no'} |"
             for k, c in enumerate(d["ranking"], 1)]
     of = f" of {d['measurements']}" if isinstance(d.get("measurements"), str) else ""
@@ -211,6 +212,11 @@ def diagnosis_markdown(name: str, d: dict) -> str:
         lines += ["", "**Added:** " + "; ".join(
             f"{a['name']} (headline error {a.get('headline_before', float('nan')):.4f} -> "
             f"{a.get('headline_after', float('nan')):.4f})" for a in added)]
+    decided = [x["sentence"] for x in d.get("decisions") or []
+               if isinstance(x, dict) and x.get("reported") and isinstance(x.get("sentence"), str)]
+    if decided:
+        lines += ["", "**How it decided** (each rule that decided, with its figures and threshold):",
+                  *(f"{k}. {sentence}" for k, sentence in enumerate(decided, 1))]
     every = [x for x in d.get("limits") or [] if isinstance(x, dict)]
     limits = _missable(every)
     if limits:
