@@ -13,6 +13,12 @@ line per case and ``name=value`` totals:
   over), "effect" else (one worn joint among them: its damping per joint, on that joint).
 
 Each case's line ends with its time and, under it, the time of every stage of the diagnosis.
+After the totals, ``rule_decided_RULE=N``: on how many logs each rule of the selection decided
+something (the diagnosis' decision trace, ``acn.diagnosis.decisions``).
+
+With ``--threshold NAME=VALUE`` (repeatable), a ``policy.Thresholds`` field is set otherwise for
+every case (``inf`` or 0 turns a rule's test off): the tally with a rule neutralised, against
+the tally without, says whether the rule earns its place.
 
 With ``--other``, the ``OTHER`` cases instead: values and seeds the rules were not made on.
 With ``--no-mocap``, the logs lack the trunk's position and linear velocity (no motion capture:
@@ -94,10 +100,13 @@ imported dataset there (``dK``), to re-diagnose with ``acn-diagnose``.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import tempfile
 import time
+from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -109,7 +118,7 @@ from robot_log import LogSpec, welded_payload, write_log  # noqa: E402
 
 from acn.measurements.importer import ImportConfig, import_log  # noqa: E402
 from acn.measurements.data import load_measurements  # noqa: E402
-from acn.diagnosis import DiagnoseConfig, diagnose  # noqa: E402
+from acn.diagnosis import THRESHOLDS, DiagnoseConfig, Thresholds, diagnose  # noqa: E402
 from acn.diagnosis.pipeline import rule_out  # noqa: E402
 from acn.diagnosis.results import held  # noqa: E402
 from acn.sim.backends import IMU_ACC_KINDS  # noqa: E402
@@ -443,7 +452,9 @@ def diagnose_pair(args, name: str, stem: str, over: dict, truth: list, seed: int
     write_log(root / f"{stem}.csv", log_spec(args, seed, over))
     path, _ = import_log(root / f"{stem}.csv", root / stem, import_config(args))
     t = time.perf_counter()
-    d = diagnose(load_measurements(path), Model.parse("mujoco"), DiagnoseConfig(), automatic=True)
+    d = diagnose(load_measurements(path), Model.parse("mujoco"), DiagnoseConfig(), automatic=True,
+                 thresholds=args.thresholds)
+    count_rules(d, tally.setdefault("rules", Counter()))
     fitted = {t.name: t.values for t in d.final.model.effects}
     hidden = {t[0] for t in truth}
     both = set(fitted) == hidden
@@ -503,6 +514,7 @@ def pairs(args, root: Path, cases: dict = PAIRS, seed: int = 300) -> None:
     print(f"{what.split('_')[0]}_named_or_same_physics={tally['same'][0]}/{tally['same'][1]}")
     print(f"{what.split('_')[0]}_within_15pct={tally['within'][0]}/{tally['within'][1]}")
     print(f"{what.split('_')[0]}_missed_short_of_limit={tally['short'][0]}/{tally['short'][1]}")
+    print_rules(tally.get("rules", Counter()))
 
 
 def _draws(text: str) -> tuple[int, int]:
@@ -520,6 +532,8 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--noise", type=float, default=1.0, help="sensor noise, multiple of robot_log.NOISE")
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--episodes", type=int, default=4)
+    ap.add_argument("--threshold", type=_threshold, action="append", default=[], metavar="NAME=VALUE",
+                    help="a policy.Thresholds field set otherwise for every case (repeatable): a rule neutralised")
     ap.add_argument("--cases", default=None, help="comma-separated names (default: every case of the set)")
     ap.add_argument("--other", action="store_true", help="the OTHER set: values and seeds the rules never saw")
     ap.add_argument("--pairs", action="store_true", help="logs with two hidden effects instead (PAIRS)")
@@ -568,6 +582,9 @@ def main() -> None:
         ap.error("--stance-torque sends its own gains and torques: not with --feedforward or --stance-gains")
     if args.stance_gains is not None and len(args.stance_gains) != 2:
         ap.error("--stance-gains takes two multiples, KP,KD")
+    args.thresholds = replace(THRESHOLDS, **dict(args.threshold))
+    if args.threshold:
+        print("thresholds: " + ", ".join(f"{k}={v:g}" for k, v in args.threshold), flush=True)
     root = args.keep or Path(tempfile.mkdtemp())
     root.mkdir(parents=True, exist_ok=True)
     cases, seed = (PAIRS, 300) if args.pairs else (TRIPLES, 900) if args.triples else (OTHER, 700) if args.other \
@@ -578,6 +595,7 @@ def main() -> None:
     if args.pairs or args.triples or args.draws:
         return pairs(args, root, cases, seed)
     tally = {"ranked_first": [0, 0], "within_15pct": [0, 0], "removed_80pct": [0, 0], "verdict_right": [0, 0]}
+    rules: Counter = Counter()
     for name in args.cases.split(",") if args.cases else cases:
         over, want, effect, key, true = cases[name]
         i = list(cases).index(name)  # a case's log is the same whichever cases run with it
@@ -586,8 +604,10 @@ def main() -> None:
         write_log(root / f"{i}.csv", log_spec(args, seed + i, over))
         path, _ = import_log(root / f"{i}.csv", root / f"d{i}", import_config(args))
         t = time.perf_counter()
-        d = diagnose(load_measurements(path), Model.parse("mujoco"), DiagnoseConfig(), automatic=True)
+        d = diagnose(load_measurements(path), Model.parse("mujoco"), DiagnoseConfig(), automatic=True,
+                     thresholds=args.thresholds)
         seconds = time.perf_counter() - t
+        count_rules(d, rules)
         tally["verdict_right"][0] += d.verdict == want
         tally["verdict_right"][1] += 1
         line = f"{name:18s} verdict={d.verdict:11s} imu={d.accelerometer.kind:7s} first={d.ranking[0].name:16s}"
@@ -619,6 +639,35 @@ def main() -> None:
             print(f"  {d.verdict}: {d.reason}", flush=True)
     for k, (good, n) in tally.items():
         print(f"{k}={good}/{n}")
+    print_rules(rules)
+
+
+def count_rules(d, rules: Counter) -> None:
+    """Count each rule of the selection that decided something in diagnosis ``d`` (its trace), in
+    any search; a rule counted on no case of any set decides nothing these logs need."""
+    rules.update({x.rule for x in d.decisions})  # once per log
+
+
+def print_rules(rules: Counter) -> None:
+    for rule, n in sorted(rules.items()):
+        print(f"rule_decided_{rule}={n}")
+
+
+def _threshold(text: str) -> tuple[str, float]:
+    """``NAME=VALUE`` of a ``policy.Thresholds`` field (a number; ``inf`` turns a rule's test off)."""
+    name, _, value = text.partition("=")
+    fields = {f.name: f for f in dataclasses.fields(Thresholds)}
+    if name not in fields or not value:
+        raise argparse.ArgumentTypeError(f"NAME=VALUE with NAME one of {', '.join(fields)}; got {text!r}")
+    if fields[name].type in ("int", int):
+        try:
+            return name, int(value)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} takes a whole number, got {value!r}") from None
+    try:
+        return name, float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{name} takes a number, got {value!r}") from None
 
 
 if __name__ == "__main__":
