@@ -25,6 +25,7 @@ from acn.errors import UserError
 from acn.diagnosis import DiagnoseConfig, diagnose
 from acn.diagnosis.problem import prepare
 from acn.diagnosis.report import terminal, to_json
+from acn.diagnosis.results import Added
 from acn.sim.collector import CollectConfig
 from acn.sim.effects import AppliedEffect, Model, get_effect
 from acn.sim.state import JOINT_NAMES, SLICES, STATE_NAMES
@@ -1037,3 +1038,108 @@ def test_the_verdict_and_the_halves_check_are_decisions_in_the_trace():
     first, second = trace.decisions
     assert first.rule == "verdict" and first.outcome == "effect" and first.inputs["effect_share"] == 0.6
     assert second.rule == "does_not_hold" and second.outcome == "unexplained" and second.sentence.endswith(reason)
+
+
+def test_a_held_out_gain_is_significant_by_z_or_by_size_and_never_below_the_least_improvement():
+    from acn.diagnosis.policy import Thresholds, significant_gain
+
+    assert significant_gain(0.03, 3.0) and not significant_gain(0.03, 2.9)  # z decides a small gain
+    assert significant_gain(0.30, 1.0)                                      # a quarter however uneven
+    assert not significant_gain(0.019, 50.0)                                # below 2 %: what fitting noise removes
+    assert significant_gain(0.03, 2.5, Thresholds(significance_z=2.5))
+
+
+def test_plausibility_names_what_a_fitted_size_says():
+    """Contradicted by the measurements, at a bound, beyond 2x the realistic range, below 3/4 of
+    its smallest magnitude, or plausible: an enum the rules compare, with the reason in words
+    built from the thresholds."""
+    from acn.diagnosis.policy import Plausibility, Thresholds, plausibility
+
+    rng = np.random.default_rng(0)
+
+    def kind(value: float, t: Thresholds = Thresholds(), **fit) -> tuple[Plausibility, str]:
+        c = ranked_candidate(rng, "joint_damping", value, 0.5, None)
+        return plausibility(replace(c.fit, **fit), t)
+
+    assert kind(0.5) == (Plausibility.PLAUSIBLE, "")
+    assert kind(5.0)[0] is Plausibility.AT_BOUND and "at the bound" in kind(5.0)[1]
+    assert kind(4.5)[0] is Plausibility.TOO_LARGE and "beyond 2x" in kind(4.5)[1]
+    assert kind(4.5, Thresholds(largest_factor=2.5))[0] is Plausibility.PLAUSIBLE
+    assert kind(0.05) == (Plausibility.TOO_SMALL, "fits a value below 75% of the smallest realistic magnitude")
+    assert kind(0.5, contradicted="lifts the stance feet") == (Plausibility.CONTRADICTED, "lifts the stance feet")
+
+
+def test_an_effect_fits_the_noise_where_it_does_not_lower_the_long_error_a_reading_within_a_tolerance():
+    """``policy.fits_noise``: a physical effect must lower the longest-horizon error; an effect on
+    the reading alone (the trunk's frame) may raise it by ``reading_tolerance``; unchecked is not
+    fitting the noise."""
+    from acn.diagnosis.policy import fits_noise
+
+    damping, frame = get_effect("joint_damping"), get_effect("base_frame_offset")
+    assert fits_noise(0.0, damping) and not fits_noise(0.01, damping)
+    assert not fits_noise(-0.04, frame) and fits_noise(-0.06, frame)
+    assert not fits_noise(None, damping)
+
+
+def test_an_added_effects_final_fit_must_stay_significant_and_plausible():
+    """``policy.final_doubt``: a final fit no longer significant (at one step, nor by removing a
+    quarter of the longest-horizon error) or implausible is not added, with its values and why."""
+    from acn.diagnosis.policy import final_doubt
+
+    rng = np.random.default_rng(1)
+    c = ranked_candidate(rng, "joint_damping", 0.5, 0.5, None)
+    one = SimpleNamespace(check=25, channel_error={25: np.full((1, 4), 1.0)})
+    half = SimpleNamespace(check=25, channel_error={25: np.full((1, 4), np.sqrt(0.5))})  # removes 50 % at 25 steps
+    step = Added(c.fit, c.judgement, one, one)
+    assert final_doubt(step) == ""
+    weak = replace(step, judgement=replace(c.judgement, significant=False, z=1.2))
+    assert "improves held-out predictions by only 1.2 standard errors" in final_doubt(weak)
+    assert "value=0.5" in final_doubt(weak)
+    assert final_doubt(replace(weak, after=half)) == ""  # significant by the longest horizon
+    assert "beyond 2x" in final_doubt(replace(step, fit=ranked_candidate(rng, "joint_damping", 4.5, 0.5, None).fit))
+
+
+def test_the_screen_refits_only_the_best_few_that_remove_something():
+    """``policy.promising``: of the ``screen_keep`` best candidates by score, those removing at
+    least ``screen_removed`` of the error are fitted again on all rows."""
+    from acn.diagnosis.policy import Thresholds, promising
+
+    rng = np.random.default_rng(2)
+    cs = [ranked_candidate(rng, "joint_damping", 0.5, 0.5, None) for _ in range(6)]
+    for k, c in enumerate(cs):
+        c.score = 0.5 - 0.1 * k
+    cs[1].judgement = replace(cs[1].judgement, removed=0.005)
+    assert promising(cs) == [cs[0], cs[2], cs[3]]
+    assert promising(cs, Thresholds(screen_keep=6, screen_removed=0.0)) == cs
+
+
+def test_the_finer_look_runs_where_no_plausible_candidate_explains_most_of_the_error():
+    from acn.diagnosis.policy import Thresholds, needs_finer_look
+
+    rng = np.random.default_rng(3)
+    c = ranked_candidate(rng, "joint_damping", 0.5, 0.5, None)  # mse_before 1, after 0.25: explains 75 % above 0
+    assert not needs_finer_look([c], 1.0, 0.0) and needs_finer_look([c], 1.0, 0.0, Thresholds(effect_share=0.8))
+    assert needs_finer_look([ranked_candidate(rng, "joint_damping", 5.0, 0.5, None)], 1.0, 0.0)  # at its bound
+    assert not needs_finer_look([], 0.0, 0.0)  # no error: nothing to look at
+
+
+def test_an_effect_added_by_hand_that_fits_the_noise_is_warned_of_in_the_trace_and_the_report():
+    """``--add``: ``policy.added_fits_noise`` judges the added effect by the rule ``--auto`` sets
+    such an effect aside by, records the warning, and the report reads it from the trace."""
+    from acn.diagnosis.decisions import tracing
+    from acn.diagnosis.policy import added_fits_noise
+    from acn.diagnosis.report import _notes
+
+    rng = np.random.default_rng(4)
+    c = ranked_candidate(rng, "joint_damping", 0.5, 0.5, None)
+    before = SimpleNamespace(check=25, channel_error={25: np.full((1, 4), 1.0)})
+    worse = SimpleNamespace(check=25, channel_error={25: np.full((1, 4), 1.1)})
+    with tracing() as trace:
+        assert added_fits_noise(Added(c.fit, c.judgement, before, before)) != ""  # no lower: the noise
+        assert added_fits_noise(Added(c.fit, c.judgement, before, SimpleNamespace(
+            check=25, channel_error={25: np.full((1, 4), 0.9)}))) == ""
+    (warned,) = trace.decisions
+    assert warned.rule == "one_step_only" and warned.inputs["effect"] == "joint_damping"
+    step = Added(c.fit, c.judgement, before, worse)
+    assert not any("sensor noise" in n for n in _notes(step, 1.5))  # no such decision: no warning
+    assert any("sensor noise" in n for n in _notes(step, 1.5, decisions=trace.decisions))
