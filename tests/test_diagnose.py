@@ -805,8 +805,10 @@ def test_an_effect_that_acts_on_few_steps_is_significant_by_its_longest_horizon_
 
     out = ranking()
     horizon = Horizon({id(out[0].fit.model): 0.48})
-    uneven(horizon, out)
+    limit = out[0]
+    out = uneven(horizon, out)
     assert out[0].judgement.significant and out[0].judgement.by_longest and out[0].longer_gain == 0.48
+    assert not limit.judgement.significant  # a new candidate in its place: the evidence stays as judged
     assert horizon.asked == [id(out[0].fit.model)]  # damping removes too little to be checked
     from acn.diagnosis.compare import Comparison
     before = Comparison(Model("mujoco"), {}, {1: np.full(4, 1.0), 25: np.full(4, 0.5)}, np.arange(10), residual + 1,
@@ -816,20 +818,20 @@ def test_an_effect_that_acts_on_few_steps_is_significant_by_its_longest_horizon_
     assert "removes 48% of the longest-horizon open-loop error" in reason and "acts on few steps" in reason
 
     out = ranking()
-    uneven(Horizon({id(out[0].fit.model): 0.2}), out)  # a fifth of the long error: not enough
+    out = uneven(Horizon({id(out[0].fit.model): 0.2}), out)  # a fifth of the long error: not enough
     assert not out[0].judgement.significant and out[0].longer_gain == 0.2
 
     out = ranking()
     out[2].judgement.significant = True  # a plausible candidate significant at one step: nothing to check
     horizon = Horizon({})
-    uneven(horizon, out)
+    out = uneven(horizon, out)
     assert horizon.asked == [] and not out[0].judgement.significant
     # ... unless it was checked and removes under 2 % of the long error (``short_lived``; a benchmark draw: joint
     # friction after the floor's friction, 3.4 % at one step and 0.2 % at 25 steps, beside a 2.2 kg payload)
     out = ranking()
     out[2].judgement.significant, out[2].longer_gain = True, 0.002
     horizon = Horizon({id(out[0].fit.model): 0.48})
-    uneven(horizon, out)
+    out = uneven(horizon, out)
     assert out[0].judgement.by_longest and horizon.asked == [id(out[0].fit.model)]
 
     # clear at one step by z, though below 2 %: checked too, and the one removing most of the long error taken
@@ -838,7 +840,7 @@ def test_an_effect_that_acts_on_few_steps_is_significant_by_its_longest_horizon_
     payload = candidate("payload", {"mass": 0.75, "com_x": 0.01, "com_y": 0.014, "com_z": 0.059}, 0.018, 8.1, False)
     weak = candidate("joint_friction", 0.2, 0.005, 2.8, False)  # below both thresholds: not checked
     horizon = Horizon({id(strength.fit.model): 0.49, id(payload.fit.model): 0.54})
-    uneven(horizon, [strength, payload, weak])
+    strength, payload, weak = uneven(horizon, [strength, payload, weak])
     assert horizon.asked == [id(strength.fit.model), id(payload.fit.model)]
     assert payload.judgement.by_longest and not strength.judgement.significant
     from acn.diagnosis.policy import evidence

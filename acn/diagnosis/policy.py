@@ -458,7 +458,7 @@ def order(problem: Problem, model: Model, cfg: DiagnoseConfig, out: list[Candida
         out = prefer_simpler(noise_fits_last(out, t=t), horizon, t=t)
     longer_gains(horizon, tied_with_best(out, t=t), t=t)
     out = prefer_longer(out, t=t)
-    uneven(horizon, out, t=t)
+    out = uneven(horizon, out, t=t)
     return noise_fits_last(out, t=t)  # those ``uneven`` found, too
 
 
@@ -493,12 +493,13 @@ def noise_fits_last(ranking: list[Candidate], t: Thresholds = THRESHOLDS) -> lis
     return sorted(ranking, key=lambda c: bool(one_step_only(c, t=t)))
 
 
-def uneven(horizon: LongestHorizon, ranking: list[Candidate], t: Thresholds = THRESHOLDS) -> None:
-    """Where no plausible candidate is significant at one step: the plausible ones that remove at
-    least ``min_improvement`` of the one-step error or improve it by ``significance_z`` standard
-    errors, in rank order (at most ``screened``), are checked at the longest horizon; the one
-    that removes the most of that error, if at least ``large_improvement``, is significant
-    (``Judgement.by_longest``).
+def uneven(horizon: LongestHorizon, ranking: list[Candidate], t: Thresholds = THRESHOLDS) -> list[Candidate]:
+    """``ranking``, where no plausible candidate is significant at one step, with the one that is
+    significant by its longest-horizon gain in its place (a new ``Candidate``, ``Judgement.by_longest``):
+    the plausible ones that remove at least ``min_improvement`` of the one-step error or improve
+    it by ``significance_z`` standard errors, in rank order (at most ``screened``), are checked at
+    the longest horizon; the one that removes the most of that error, if at least
+    ``large_improvement``, is significant.
 
     An effect that acts on few steps is uneven at one step and shows over a long prediction:
     on a noisy log with a 20 N m torque limit, which the controller reached in 3.6 % of the
@@ -525,21 +526,23 @@ def uneven(horizon: LongestHorizon, ranking: list[Candidate], t: Thresholds = TH
     """
     if horizon.steps <= 1 or any(c.judgement.significant and not doubt(c, t=t) and not short_lived(c, t=t)
                                  for c in ranking):
-        return
+        return ranking
     pool = [c for c in ranking if not implausible(c.fit, t=t) and (
         c.judgement.removed >= t.min_improvement or c.judgement.z >= t.significance_z)][:t.screened]
     longer_gains(horizon, pool, t=t)
     best = max(pool, key=lambda c: c.longer_gain, default=None)
-    if best is not None and best.longer_gain >= t.large_improvement:
-        best.judgement = replace(best.judgement, significant=True, by_longest=True)
-        record("uneven", "significant", (
-            f"{best.name} is significant by its {horizon.steps}-step prediction: it removes "
-            f"{share(best.longer_gain)} of that open-loop error (at least {share(t.large_improvement)}), "
-            f"at one step {share(best.judgement.removed)} (z {best.judgement.z:.1f}; at least "
-            f"{share(t.min_improvement)} and z {t.significance_z:g} there)"),
-            effect=best.name, longest_horizon_removed=best.longer_gain, large_improvement=t.large_improvement,
-            removed=best.judgement.removed, z=best.judgement.z, min_improvement=t.min_improvement,
-            significance_z=t.significance_z, horizon=horizon.steps)
+    if best is None or best.longer_gain < t.large_improvement:
+        return ranking
+    record("uneven", "significant", (
+        f"{best.name} is significant by its {horizon.steps}-step prediction: it removes "
+        f"{share(best.longer_gain)} of that open-loop error (at least {share(t.large_improvement)}), "
+        f"at one step {share(best.judgement.removed)} (z {best.judgement.z:.1f}; at least "
+        f"{share(t.min_improvement)} and z {t.significance_z:g} there)"),
+        effect=best.name, longest_horizon_removed=best.longer_gain, large_improvement=t.large_improvement,
+        removed=best.judgement.removed, z=best.judgement.z, min_improvement=t.min_improvement,
+        significance_z=t.significance_z, horizon=horizon.steps)
+    significant = replace(best, judgement=replace(best.judgement, significant=True, by_longest=True))
+    return [significant if c is best else c for c in ranking]
 
 
 def prefer_simpler(ranking: list[Candidate], horizon: LongestHorizon | None = None,
