@@ -66,7 +66,8 @@ what candidates that fit the noise remove (``noise_fitted``).
 
 Verdict (``verdict``):
 - ``effect``: a candidate (the best one whose held-out improvement is significant and whose
-  magnitude is plausible: ``implausible``) explains at least 70 % of the error above the
+  magnitude is plausible: ``implausible``; with ``--auto``, one it added: a candidate its chain
+  declined as too little is not named) explains at least 70 % of the error above the
   noise floor; with ``--auto``, or the effects added one after the other do, or the model with
   them matches within the noise by the rule that gives ``none`` (less than 15 % of its error
   structured; also where the error was mostly noise before: a small effect under sensor noise,
@@ -1474,6 +1475,9 @@ def holds_on_halves(judged: tuple[str, str, tuple[str, ...]], fits: list[HalfFit
     return "unexplained", reason, ()
 
 
+NOT_ADDED = "is not added by --auto (too little to add)"  # a candidate --auto declined, in a reason
+
+
 def _verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Candidate], added: list[Added],
              automatic: bool, set_aside: dict[str, str], t: Thresholds) -> tuple[str, str, tuple[str, ...]]:
     if before.headline < t.exact:
@@ -1497,7 +1501,10 @@ def _verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Can
                    f"against {structured:.0%} before")
             return "effect", (f"{explain} {part:.0%} of the error above the noise floor{gain}, and what is "
                               f"left matches within the noise: {why}"), effects
-    plausible = [c for c in ranking if c.judgement.significant and not doubt(c, t=t) and c.name not in set_aside]
+    # With --auto its chain is the answer: a candidate it did not add (too little to, or set aside) is not named
+    declined = {c.name for c in ranking if c.name not in names(added)} if automatic else set()
+    plausible = [c for c in ranking if c.judgement.significant and not doubt(c, t=t) and c.name not in set_aside
+                 and c.name not in declined]
     top = plausible[0] if plausible else None
     aside = "".join(f"; {name} set aside: {why}" for name, why in set_aside.items())
     if top is not None and top.judgement.explained(floor_mse) >= t.effect_share:
@@ -1512,11 +1519,11 @@ def _verdict(before: Comparison, mse: float, floor_mse: float, ranking: list[Can
                or not best.judgement.significant else
                f"the best plausible candidate, {top.name}, explains only {top.judgement.explained(floor_mse):.0%} of it"
                if top is not None else
-               f"the best candidate, {best.name}, {doubt(best, t=t) or set_aside.get(best.name, '')}")
+               f"the best candidate, {best.name}, {doubt(best, t=t) or set_aside.get(best.name, '') or NOT_ADDED}")
         return "unexplained", f"{structured:.0%} of the error is structured (above the noise floor); {why}{aside}", ()
     extra = f"; the best candidate, {best.name}, removes {best.judgement.removed:.1%} of it" if best else ""
-    if best is not None and (implausible(best.fit, t=t) or best.name in set_aside):
-        extra += f" but {implausible(best.fit, t=t) or set_aside[best.name]}"
+    if best is not None and (implausible(best.fit, t=t) or best.name in set_aside or best.name in declined):
+        extra += f" but {implausible(best.fit, t=t) or set_aside.get(best.name) or NOT_ADDED}"
     noise = sorted((c for c in ranking if one_step_only(c, t=t)),
                    key=lambda c: -c.judgement.removed)  # the most convincing first
     if noise:
