@@ -13,8 +13,10 @@ line per case and ``name=value`` totals:
   over), "effect" else (one worn joint among them: its damping per joint, on that joint).
 
 Each case's line ends with its time and, under it, the time of every stage of the diagnosis.
-After the totals, ``rule_decided_RULE=N``: on how many logs each rule of the selection decided
-something (the diagnosis' decision trace, ``acn.diagnosis.decisions``).
+Under it, ``rules:`` the rules of the selection that decided something on that log (the
+diagnosis' decision trace, ``acn.diagnosis.decisions``), and after the totals
+``rule_decided_RULE=N``: on how many logs each did. A rule that decided nothing on a log changed
+nothing there: neutralising it (``--threshold``) can only change the logs that list it.
 
 With ``--threshold NAME=VALUE`` (repeatable), a ``policy.Thresholds`` field is set otherwise for
 every case (``inf`` or 0 turns a rule's test off): the tally with a rule neutralised, against
@@ -635,6 +637,7 @@ def main() -> None:
                  for a in d.added]
         print(line + f" added={added}{aside} {seconds:.0f}s", flush=True)
         print(f"  stages: {', '.join(f'{k} {v:.0f}' for k, v in d.stages.items())}", flush=True)
+        print(f"  rules: {', '.join(sorted({x.rule for x in d.decisions}))}", flush=True)
         if d.verdict != want:
             print(f"  {d.verdict}: {d.reason}", flush=True)
     for k, (good, n) in tally.items():
