@@ -1075,7 +1075,7 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
     current, residual = first, base_residual
     start_mse = float(np.mean(base_residual ** 2))
     clock = clock or StageClock()
-    while len(names(added)) < cfg.auto_max and len(added) < 2 * cfg.auto_max:  # the --auto-max bound  # (refinements: finite, bounded)
+    while len(names(added)) < cfg.auto_max and len(added) < 2 * cfg.auto_max:  # --auto-max (refinements: bounded)
         open_ = [c for c in ranking if c.name not in names(added) or c.name not in kept_coarse  # refinements too
                  and finer(c.fit.granularity, held(current.model, c.name))]
         open_ = [c for c in open_ if c.name not in noise_fits | set(set_aside)]
