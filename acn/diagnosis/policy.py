@@ -885,7 +885,8 @@ def final_doubt(step: Added, t: Thresholds = THRESHOLDS) -> str:
     f = step.fit
     values = ", ".join(f"{n}={x:.4g}" for n, x in zip(f.names, f.x)) if len(f.x) <= 4 else f"{len(f.x)} values"
     if not significant(step, t=t):
-        return f"its final fit ({values}) improves held-out predictions by only {step.judgement.z:.1f} standard errors"
+        return (f"its final fit ({values}) improves held-out predictions by only {step.judgement.z:.1f} standard errors "
+                f"(at least {t.significance_z:g}, or {t.large_improvement:.0%} of the longest-horizon error removed)")
     why = implausible(f, t=t)
     return f"its final fit ({values}) {why}" if why else ""
 
@@ -898,10 +899,12 @@ def too_little(j: Judgement, longer: float | None, floor_mse: float, t: Threshol
     ``auto_min_longer`` of the longest-horizon one. ``greedy`` asks it of the best candidate, and
     again of its final fit (a final fit on more rows can remove less than the ranking's)."""
     if j.explained(floor_mse) < t.auto_min_explained and j.removed < t.structured_share:
-        return f"explains only {j.explained(floor_mse):.1%} of the structured error left"
+        return (f"explains only {j.explained(floor_mse):.1%} of the structured error left (at least "
+                f"{t.auto_min_explained:.1%}, or {t.structured_share:.0%} of the whole error removed)")
     if j.removed < t.auto_min_removed and (longer or 0.0) < t.auto_min_longer:
         tail = f" and {longer:.1%} at the longest horizon" if longer is not None else ""
-        return f"removes only {j.removed:.1%} of the one-step error{tail}"
+        return (f"removes only {j.removed:.1%} of the one-step error{tail} (at least {t.auto_min_removed:.1%} "
+                f"at one step or {t.auto_min_longer:.1%} at the longest horizon)")
     return ""
 
 
