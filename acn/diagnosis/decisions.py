@@ -46,14 +46,6 @@ class Trace:
     decisions: list[Decision] = field(default_factory=list)
     searches: list[str] = field(default_factory=list)  # the ``within`` labels open now, outermost first
 
-    def main(self) -> list[Decision]:
-        """The decisions made while building the chain reported first and judging it (``within`` "")."""
-        return [d for d in self.decisions if not d.within]
-
-    def of(self, rule: str, **inputs: Input) -> list[Decision]:
-        """The decisions of ``rule`` whose inputs hold ``inputs`` (e.g. ``effect="payload"``)."""
-        return [d for d in self.decisions if d.rule == rule and all(d.inputs.get(k) == v for k, v in inputs.items())]
-
 
 _ACTIVE: ContextVar[Trace | None] = ContextVar("acn_diagnosis_trace", default=None)
 

@@ -144,11 +144,10 @@ def diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None = None
 
 def _diagnose(data: Measurements, model: Model, cfg: DiagnoseConfig | None, add: list[str], automatic: bool,
               progress, check_data: bool, accelerometer: Accelerometer | None, thresholds: Thresholds,
-              clock: StageClock | None) -> Diagnosis | Accelerometer:
+              clock: StageClock) -> Diagnosis | Accelerometer:
     """One run of ``diagnose``: the Diagnosis, or where the accelerometer was judged with the model
     and reads otherwise under the final model, that judgement (``diagnose`` runs again with it)."""
     cfg, t = cfg or DiagnoseConfig(), thresholds
-    clock = clock or StageClock()
     for name in add:
         get_effect(name)  # unknown names fail before any work
     say = progress or (lambda msg, fraction=None: None)

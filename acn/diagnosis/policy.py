@@ -936,13 +936,21 @@ def unneeded(step: Added, start: Comparison, start_mse: float, floor_mse: float,
 
 
 def nothing_left(current: Comparison, mse: float, start: Comparison, start_mse: float, floor_mse: float,
-                 t: Thresholds = THRESHOLDS) -> bool:
+                 t: Thresholds = THRESHOLDS, then: str = "stopped") -> bool:
     """Whether no effect added beside ``current`` (held-out one-step error ``mse``) can pass
     ``unneeded`` any more: all of what is left, noise included, is under ``auto_min_share`` of
     the structured error ``start`` had (one-step error ``start_mse``), and of its open-loop error
-    at the longest horizon. --auto stops there: no ranking, finer look or other start."""
+    at the longest horizon. --auto stops there: no ranking, finer look or other start (``then``:
+    what the decision recorded says it does)."""
     one, longer = left_over(current, mse, start, start_mse, floor_mse)
-    return one < t.auto_min_share and longer < t.auto_min_share
+    if not (one < t.auto_min_share and longer < t.auto_min_share):
+        return False
+    record("nothing_left", then, (
+        f"{then}: what is left, {share(one)} of the error above the noise floor the diagnosis started from and "
+        f"{share(longer)} of its {start.check}-step open-loop error, is under {share(t.auto_min_share)} of each: "
+        "no effect added beside it could be needed"), one_step_left=one, longest_horizon_left=longer,
+        auto_min_share=t.auto_min_share)
+    return True
 
 
 def left_over(current: Comparison, mse: float, start: Comparison, start_mse: float, floor_mse: float) -> tuple[float, float]:
@@ -952,16 +960,6 @@ def left_over(current: Comparison, mse: float, start: Comparison, start_mse: flo
     one = mse / (start_mse - floor_mse) if start_mse > floor_mse else 0.0
     longer = 1.0 - removed_at(start, current, start.check) if start.check > 1 else 0.0
     return one, longer
-
-
-def _record_nothing_left(current: Comparison, mse: float, start: Comparison, start_mse: float, floor_mse: float,
-                         then: str, t: Thresholds = THRESHOLDS) -> None:
-    one, longer = left_over(current, mse, start, start_mse, floor_mse)
-    record("nothing_left", then, (
-        f"{then}: what is left, {share(one)} of the error above the noise floor the diagnosis started from and "
-        f"{share(longer)} of its {start.check}-step open-loop error, is under {share(t.auto_min_share)} of each: "
-        "no effect added beside it could be needed"), one_step_left=one, longest_horizon_left=longer,
-        auto_min_share=t.auto_min_share)
 
 
 def refine_chain(problem: Problem, before: Comparison, steps: list[Added], cfg: DiagnoseConfig,
@@ -1139,7 +1137,6 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
                large_improvement=t.large_improvement)
         current, residual = step.after, step.judgement.residual_after
         if nothing_left(current, step.judgement.mse_after, first, start_mse, floor_mse, t=t):
-            _record_nothing_left(current, step.judgement.mse_after, first, start_mse, floor_mse, "stopped", t=t)
             break
         if len(names(added)) < cfg.auto_max:
             with clock.stage(f"rank beside {' + '.join(names(added))}"):
@@ -1297,9 +1294,7 @@ def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge
     kept = Chain(chain, chain[0].name, kept=True, why="the best candidate first")
     tried = [kept]
     if nothing_left(chain[-1].after, chain[-1].judgement.mse_after, first, float(np.mean(base_residual ** 2)),
-                    floor_mse, t=t):
-        _record_nothing_left(chain[-1].after, chain[-1].judgement.mse_after, first, float(np.mean(base_residual ** 2)),
-                             floor_mse, "no other start tried", t=t)
+                    floor_mse, t=t, then="no other start tried"):
         return kept.steps, tried  # no other chain can explain a share of the error this one leaves
     pool = [c for c in ranking if c.judgement.significant and not doubt(c, t=t)]
     shortlist = replace(cfg, candidates=tuple(c.name for c in pool[:t.shortlist]),

@@ -136,7 +136,7 @@ def _noise_fit_text(a: Added, decisions: Sequence[Decision]) -> str:
     only (``policy.added_fits_noise``), "" where it holds none."""
     warned = [x for x in decisions if x.rule == "one_step_only" and x.outcome == "warned"
               and x.inputs.get("effect") == a.name]
-    return warned[-1].sentence.split(": ", 1)[1] if warned else ""
+    return warned[-1].sentence.removeprefix(f"{a.name} (--add): ") if warned else ""
 
 
 def reported_decisions(d: Diagnosis) -> list[Decision]:
