@@ -186,7 +186,7 @@ def a_candidate_whose_final_fit_is_set_aside_gives_way_to_the_runner_up(tmp, val
     data = measured(tmp, {"joint_damping": {"value": 0.4}})
     cfg = replace(FAST, finest="shared", candidates=("joint_damping", "joint_friction", "armature"),
                   auto_alternatives=0)
-    with mock.patch.object(policy, "final_doubt", refuse):  # the report reads it too: held to the end
+    with mock.patch.object(policy.adding, "final_doubt", refuse):  # the report reads it too: held to the end
         d = diagnose(data, Model.parse("mujoco"), cfg, automatic=True)
         value["added"] = ",".join(a.name for a in d.added)
         assert d.ranking[0].name == "joint_damping", [(c.name, c.score) for c in d.ranking]
@@ -217,7 +217,7 @@ def an_implausible_finer_fit_gives_way_to_the_coarser_one_it_beat(tmp, value):
     real = policy.implausible
     refuse = lambda f, t=policy.THRESHOLDS: (  # noqa: E731
         "refused for the test" if f.granularity == "type" else real(f, t=t))
-    with mock.patch.object(policy, "implausible", refuse):
+    with mock.patch.object(policy.adding, "implausible", refuse):
         fit, judgement = policy.choose_fit(problem, Model.parse("mujoco"), "joint_damping", cfg, rows, residual)
     value["shared_value"] = round(float(np.mean(fit.values["value"])), 4)
     assert fit.granularity == "shared" and judgement.significant, fit.values
