@@ -810,6 +810,12 @@ def _step_seconds(text: str) -> float | None:
     return value if value > 0 else None
 
 
+def _no_bound_at_zero(text: str) -> float | None:
+    """``--auto-seconds``: seconds >= 0, where 0 means no bound (None)."""
+    value = nonneg_float(text)
+    return value if value > 0 else None
+
+
 def _diagnose_flags() -> dict[str, Flag]:
     """DiagnoseConfig's fields on the command line (``acn-diagnose``)."""
     from acn.diagnosis.fitting import GRANULARITIES
@@ -817,6 +823,10 @@ def _diagnose_flags() -> dict[str, Flag]:
     return {
         "auto_alternatives": Flag("with --auto: also start from the next N candidates and keep a chain that predicts "
                                   "clearly better (one effect can stand in for two)", nonneg_int, metavar="N"),
+        "auto_max": Flag("with --auto: add at most N effects", positive_int, metavar="N"),
+        "auto_seconds": Flag("with --auto: start no new step of the search after S s of the diagnosis (the step "
+                             "running ends, then the halves check), and say what was left untried; 0: no bound",
+                             _no_bound_at_zero, metavar="S"),
         "finest": Flag("the finest granularity an added per-joint effect may get: one value for every joint, one per "
                        "joint type, leg or joint (a finer one is kept where it predicts significantly better; coarser "
                        "is quicker)", choices=GRANULARITIES),

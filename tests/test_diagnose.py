@@ -11,6 +11,7 @@ of the catalogue, the rules on real residuals, data problems, the accelerometer'
 from __future__ import annotations
 
 import json
+import time
 from dataclasses import replace
 from types import SimpleNamespace
 
@@ -1165,3 +1166,32 @@ def test_with_auto_the_verdict_names_only_what_auto_added():
     assert v == "effect" and named == ("joint_friction",), reason
     v, reason, named = verdict(before, 1.0, 0.972, [friction], [], automatic=True)
     assert v == "none" and named == () and "is not added by --auto" in reason, reason
+
+
+def test_the_search_bound_records_what_it_leaves_untried():
+    """``policy.out_of_time``: no bound (None) or time left lets the search go on; past
+    ``auto_seconds`` it records the step not started, with the time run and the bound."""
+    from acn.diagnosis.clock import StageClock
+    from acn.diagnosis.decisions import tracing
+    from acn.diagnosis.policy import out_of_time
+
+    ten_seconds_in = StageClock(started=time.perf_counter() - 10.0)
+    with tracing() as trace:
+        assert not out_of_time(replace(FAST, auto_seconds=None), ten_seconds_in, "adding payload")
+        assert not out_of_time(replace(FAST, auto_seconds=60.0), ten_seconds_in, "adding payload")
+        assert out_of_time(replace(FAST, auto_seconds=5.0), ten_seconds_in, "adding payload")
+    [x] = trace.decisions
+    assert (x.rule, x.outcome, x.inputs["auto_seconds"]) == ("out_of_time", "left untried", 5.0)
+    assert x.sentence.startswith("adding payload left untried: the search has run 10 s (--auto-seconds 5)"), x.sentence
+
+
+def test_a_bounded_search_stops_and_says_what_it_left_untried(tmp_path):
+    """--auto past --auto-seconds starts no new step: here it stops before the first effect is
+    added, the verdict names nothing it did not add, and the terminal says what was left."""
+    data = measured(tmp_path, {"joint_damping": {"value": 0.5}})
+    cfg = replace(FAST, finest="shared", candidates=("joint_damping", "joint_friction", "armature"), auto_seconds=1e-3)
+    d = diagnose(data, Model.parse("mujoco"), cfg, automatic=True)
+    assert not d.added and d.verdict != "effect", (d.verdict, d.reason)
+    [x] = [x for x in d.decisions if x.rule == "out_of_time"]
+    assert x.sentence.startswith("adding joint_damping"), x.sentence
+    assert f"on a bounded search: {x.sentence}" in terminal(d)

@@ -17,6 +17,11 @@ from typing import Callable, Iterator
 class StageClock:
     seconds: dict[str, float] = field(default_factory=dict)  # stage -> wall time, s, in the order run
     verbose: Callable[[str], None] | None = None              # hears "<stage>: <seconds> s" as each ends
+    started: float = field(default_factory=time.perf_counter)  # the diagnosis's start (``time.perf_counter``)
+
+    def elapsed(self) -> float:
+        """Seconds since the clock was made (the diagnosis's wall time so far)."""
+        return time.perf_counter() - self.started
 
     @contextmanager
     def stage(self, name: str) -> Iterator[None]:

@@ -65,6 +65,8 @@ class DiagnoseConfig:
     fit_rows: int = 1_500          # fit rows for an added effect's final fit
     candidates: tuple[str, ...] = EFFECT_NAMES
     auto_max: int = 4              # at most this many effects added by --auto
+    auto_seconds: float | None = 120.0  # --auto starts no new step of its search after this many s of the
+    # diagnosis, and says what it left untried (``policy.adding.out_of_time``); None: no bound
     auto_alternatives: int = 1     # --auto also starts from the next this many candidates (``policy.other_starts``)
     finest: str = "joint"          # the finest granularity an added per-joint effect may get (``policy.choose_fit``)
     threads: int | None = None
@@ -78,6 +80,10 @@ class DiagnoseConfig:
         for name in ("compare_rows", "rollout_starts", "rank_rows", "screen_rows", "judge_rows", "fit_rows"):
             if getattr(self, name) < 8:
                 raise UserError(f"{name} must be >= 8")
+        if self.auto_max < 1:
+            raise UserError("auto_max must be >= 1")
+        if self.auto_seconds is not None and not (math.isfinite(self.auto_seconds) and self.auto_seconds > 0):
+            raise UserError(f"auto_seconds must be a positive number of seconds (or None), got {self.auto_seconds}")
         if self.auto_alternatives < 0:
             raise UserError("auto_alternatives must be >= 0")
         if self.finest not in GRANULARITIES:

@@ -405,6 +405,7 @@ def terminal(d: Diagnosis) -> str:
     if decided:
         out += ["", "how it decided:", *(f"  {x.sentence}" for x in decided)]
     out += ["", f"verdict: {d.verdict} ({d.reason})"]
+    out += [f"  on a bounded search: {x.sentence}" for x in decided if x.rule == "out_of_time"]
     if d.limits:
         one = _one_joint(d.limits)
         out += ["", f"what this log rules out: {LIMITS}" + (f"; {ONE_JOINT}" if one else ""),

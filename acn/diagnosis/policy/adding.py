@@ -286,6 +286,8 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
         # (uneven, short_lived)
         best = next((c for c in candidates if not too_little(c.judgement, c.longer_gain, floor_mse, t=t)), None)
         if best is None and added and not looked:  # one joint apart (docstring)
+            if out_of_time(cfg, clock, "the finer look at joints apart (per joint type, leg and joint)"):
+                break
             looked = True
             with clock.stage("finer look"):
                 looked_finer = finer_look(
@@ -297,6 +299,9 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
                 continue
         if best is None:
             _record_no_candidate(candidates, open_, floor_mse, t=t)
+            break
+        if out_of_time(cfg, clock, f"adding {best.name}" + (
+                f" (then {', '.join(c.name for c in candidates if c is not best)})" if len(candidates) > 1 else "")):
             break
         if progress:
             progress(f"adding {best.name}", None)
@@ -340,6 +345,8 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
         if nothing_left(current, step.judgement.mse_after, first, start_mse, floor_mse, t=t):
             break
         if len(names(added)) < cfg.auto_max:
+            if out_of_time(cfg, clock, f"ranking the candidates beside {' + '.join(names(added))} (and adding one)"):
+                break
             with clock.stage(f"rank beside {' + '.join(names(added))}"):
                 ranking, looked = rank(problem, current.model, cfg, judge_rows, residual, progress, t=t), False
                 coarse = [n for n in names(added) if n not in kept_coarse
@@ -351,6 +358,20 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
         record("greedy", "stopped", f"stopped at the --auto-max bound ({cfg.auto_max} effects): no more were tried",
                auto_max=cfg.auto_max)
     return added, set_aside
+
+
+def out_of_time(cfg: DiagnoseConfig, clock: StageClock, untried: str) -> bool:
+    """Whether the search has run its ``cfg.auto_seconds`` (``--auto-seconds``); if so, records
+    ``untried``, the step it does not start. A model wrong in many small ways (another model of
+    the robot) or by structure outside the catalogue keeps every candidate promising, and the
+    search would otherwise run for tens of minutes; the step already running ends, and the
+    verdict is given on what was found."""
+    if cfg.auto_seconds is None or clock.elapsed() < cfg.auto_seconds:
+        return False
+    record("out_of_time", "left untried", (
+        f"{untried} left untried: the search has run {clock.elapsed():.0f} s (--auto-seconds {cfg.auto_seconds:g})"),
+        elapsed=clock.elapsed(), auto_seconds=cfg.auto_seconds)
+    return True
 
 
 def _added_sentence(step: Added, floor_mse: float, t: Thresholds = THRESHOLDS) -> str:

@@ -13,7 +13,7 @@ from acn.diagnosis import heldout
 from acn.diagnosis.clock import StageClock
 from acn.diagnosis.compare import Comparison
 from acn.diagnosis.decisions import record, share, within
-from acn.diagnosis.policy.adding import add_effect, greedy, nothing_left, refine_chain
+from acn.diagnosis.policy.adding import add_effect, greedy, nothing_left, out_of_time, refine_chain
 from acn.diagnosis.policy.judging import doubt
 from acn.diagnosis.policy.ranking import rank, ties_of
 from acn.diagnosis.policy.thresholds import THRESHOLDS, Thresholds
@@ -36,10 +36,12 @@ def auto(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows: n
     clock = clock or StageClock()
     steps, set_aside = greedy(problem, first, cfg, judge_rows, base_residual, floor_mse, ranking, progress, t=t,
                               clock=clock)
+    deadline = StageClock(started=clock.started)  # the search's bound, without nesting the stages it times
     with clock.stage("revisit"):
-        chain = revisit(problem, first, cfg, judge_rows, base_residual, steps, progress, t=t)
+        chain = revisit(problem, first, cfg, judge_rows, base_residual, steps, progress, t=t, clock=deadline)
     with clock.stage("other starts"):
-        return (*other_starts(problem, first, cfg, judge_rows, base_residual, floor_mse, ranking, chain, progress, t=t),
+        return (*other_starts(problem, first, cfg, judge_rows, base_residual, floor_mse, ranking, chain, progress, t=t,
+                              clock=deadline),
                 set_aside)
 
 
@@ -117,7 +119,8 @@ def _error_ratio(v: dict) -> float:
 
 def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows: np.ndarray,
                  base_residual: np.ndarray, floor_mse: float, ranking: list[Candidate], chain: list[Added],
-                 progress=None, t: Thresholds = THRESHOLDS) -> tuple[list[Added], list[Chain]]:
+                 progress=None, t: Thresholds = THRESHOLDS,
+                 clock: StageClock | None = None) -> tuple[list[Added], list[Chain]]:
     """The greedy chain started from each of the next ``cfg.auto_alternatives`` plausible,
     significant candidates of the first ranking, re-ranking only the ``shortlist`` best of them.
     Another chain adds at most one effect more than the kept one holds: it stands for two effects that one of the kept
@@ -159,14 +162,19 @@ def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge
     pool = [c for c in ranking if c.judgement.significant and not doubt(c, t=t)]
     shortlist = replace(cfg, candidates=tuple(c.name for c in pool[:t.shortlist]),
                         auto_max=min(cfg.auto_max, len(names(chain)) + 1))
-    for c in [c for c in pool if c.name != chain[0].name][:cfg.auto_alternatives]:
+    clock = clock or StageClock()
+    starts = [c for c in pool if c.name != chain[0].name][:cfg.auto_alternatives]
+    for i, c in enumerate(starts):
+        if out_of_time(cfg, clock, f"the chains started with {', '.join(s.name for s in starts[i:])}"):
+            break
         if progress:
             progress(f"trying {c.name} first", None)
         with within(f"chain started with {c.name}"):
-            steps, _ = greedy(problem, first, shortlist, judge_rows, base_residual, floor_mse, [c], progress, t=t)
+            steps, _ = greedy(problem, first, shortlist, judge_rows, base_residual, floor_mse, [c], progress, t=t,
+                              clock=clock)
             if steps and steps[0].name == c.name:  # its ties in the first ranking, which this chain started past
                 steps[0].ties = ties_of(c, ranking, t=t)
-            steps = revisit(problem, first, cfg, judge_rows, base_residual, steps, progress, t=t)
+            steps = revisit(problem, first, cfg, judge_rows, base_residual, steps, progress, t=t, clock=clock)
         other = Chain(steps, c.name)
         tried.append(other)
         if not steps:
@@ -206,7 +214,8 @@ def _size(name: str) -> int:
 
 
 def revisit(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows: np.ndarray,
-            base_residual: np.ndarray, added: list[Added], progress=None, t: Thresholds = THRESHOLDS) -> list[Added]:
+            base_residual: np.ndarray, added: list[Added], progress=None, t: Thresholds = THRESHOLDS,
+            clock: StageClock | None = None) -> list[Added]:
     """Each of two or more added effects judged again beside the others.
 
     Adding greedily, a richer effect can absorb part of one added after it (both PD gains scaled
@@ -234,7 +243,8 @@ def revisit(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows
     effect would be left out (each standing in for another), the chain stays as it is.
     """
     effects = names(added)
-    if len(effects) < 2:
+    if len(effects) < 2 or out_of_time(cfg, clock or StageClock(), f"judging {' + '.join(effects)} again beside "
+                                                                      "each other (revisit)"):
         return added
     chosen: list[str | None] = list(effects)
     final = added[-1].after.model
