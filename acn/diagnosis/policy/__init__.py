@@ -93,7 +93,7 @@ from acn.diagnosis.policy.ranking import (better_at_one_step, candidate, finer_l
 from acn.diagnosis.policy.adding import (add_effect, added_fits_noise, choose_fit, final_doubt, fit_over_steps, greedy,
                                          left_over, nothing_left, out_of_time, refine_chain, too_little, unneeded)
 from acn.diagnosis.policy.chains import (auto, horizon_votes, improvement, other_starts, predicts_as_well,
-                                         predicts_better, predicts_no_worse, revisit)
+                                         predicts_better, revisit)
 from acn.diagnosis.policy.verdict import NOT_ADDED, does_not_hold, holds_on_halves, verdict
 
 __all__ = ["NOT_ADDED", "Plausibility", "THRESHOLDS", "Thresholds", "add_effect", "added_fits_noise", "at_bound",
@@ -102,7 +102,7 @@ __all__ = ["NOT_ADDED", "Plausibility", "THRESHOLDS", "Thresholds", "add_effect"
            "floor_says_noise", "greedy", "holds_on_halves", "horizon_votes", "implausible", "improvement", "judge",
            "judgement", "left_over", "longer_gains", "longer_margin", "needs_finer_look", "noise_fits_last",
            "noise_fitted", "nothing_left", "one_step_only", "one_step_tie", "order", "out_of_time", "other_starts",
-           "over_steps_from_realistic", "plausibility", "predicts_as_well", "predicts_better", "predicts_no_worse",
+           "over_steps_from_realistic", "plausibility", "predicts_as_well", "predicts_better",
            "prefer_longer", "prefer_simpler", "promised", "promising", "rank", "refine_chain", "revisit", "screen",
            "short_lived", "significant", "significant_gain", "tied_either_way", "tied_with", "tied_with_best",
            "ties_of", "too_large", "too_little", "too_small", "uneven", "unidentified", "unneeded", "verdict"]
