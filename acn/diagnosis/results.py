@@ -13,9 +13,10 @@ from acn.diagnosis.heldout import Judgement, longest_removed
 from acn.sim.effects import Model
 
 
-@dataclass
+@dataclass(frozen=True)
 class Candidate:
-    """One candidate effect, fitted and judged on held-out rows."""
+    """One candidate effect, fitted and judged on held-out rows: evidence, which no rule changes
+    (a rule that finds more gives a new one: ``policy.ranking.longer_gains``)."""
 
     fit: EffectFit
     judgement: Judgement

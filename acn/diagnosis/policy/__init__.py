@@ -85,7 +85,7 @@ from acn.diagnosis.policy.judging import (Plausibility, at_bound, doubt, evidenc
                                           floor_after, floor_says_noise, implausible, judge, judgement, noise_fitted,
                                           one_step_only, plausibility, short_lived, significant, significant_gain,
                                           too_large, too_small, unidentified)
-from acn.diagnosis.policy.ranking import (better_at_one_step, candidate, finer_look, longer_gains, longer_margin,
+from acn.diagnosis.policy.ranking import (better_at_one_step, candidate, finer_look, longer_gains,
                                           needs_finer_look, noise_fits_last, one_step_tie, order,
                                           over_steps_from_realistic, prefer_longer, prefer_simpler, promised,
                                           promising, rank, screen, tied_either_way, tied_with, tied_with_best, ties_of,
@@ -100,7 +100,7 @@ __all__ = ["NOT_ADDED", "Plausibility", "THRESHOLDS", "Thresholds", "add_effect"
            "auto", "better_at_one_step", "candidate", "choose_fit", "does_not_hold", "doubt", "evidence",
            "final_doubt", "finer_look", "fit_over_steps", "fits_noise", "fits_noise_by_size", "floor_after",
            "floor_says_noise", "greedy", "holds_on_halves", "horizon_votes", "implausible", "improvement", "judge",
-           "judgement", "left_over", "longer_gains", "longer_margin", "needs_finer_look", "noise_fits_last",
+           "judgement", "left_over", "longer_gains", "needs_finer_look", "noise_fits_last",
            "noise_fitted", "nothing_left", "one_step_only", "one_step_tie", "order", "out_of_time", "other_starts",
            "over_steps_from_realistic", "plausibility", "predicts_as_well", "predicts_better",
            "prefer_longer", "prefer_simpler", "promised", "promising", "rank", "refine_chain", "revisit", "screen",

@@ -99,23 +99,26 @@ def order(problem: Problem, model: Model, cfg: DiagnoseConfig, out: list[Candida
         progress("checking the best candidates at the longest horizon", None)
     horizon = LongestHorizon(problem, model, cfg)
     for _ in range(2):  # twice: the simpler candidate put in the best one's place is checked too
-        screen(horizon, out, t=t)
+        out = screen(horizon, out, t=t)
         out = prefer_simpler(noise_fits_last(out, t=t), horizon, t=t)
-    longer_gains(horizon, tied_with_best(out, t=t), t=t)
+    out = longer_gains(horizon, out, tied_with_best(out, t=t), t=t)
     out = prefer_longer(out, t=t)
     out = uneven(horizon, out, t=t)
     return noise_fits_last(out, t=t)  # those ``uneven`` found, too
 
 
-def longer_gains(horizon: LongestHorizon, candidates: list[Candidate], until_one_passes: bool = False,
-                 t: Thresholds = THRESHOLDS) -> None:
-    """Set ``longer_gain`` of ``candidates`` where it is not set, in order (nothing with one-step
-    horizons only); ``until_one_passes``: stop at the first that lowers the longest-horizon error."""
+def longer_gains(horizon: LongestHorizon, ranking: list[Candidate], which: list[Candidate],
+                 until_one_passes: bool = False, t: Thresholds = THRESHOLDS) -> list[Candidate]:
+    """``ranking`` with the ``longer_gain`` of the candidates ``which`` (of it) checked where it is
+    not yet, in order: a new ``Candidate`` in each one's place, the others as they are (``ranking``
+    itself with one-step horizons only); ``until_one_passes``: stop at the first that lowers the
+    longest-horizon error. Each candidate is checked once: a rule that asks again reads it."""
     if horizon.steps <= 1:
-        return
-    for c in candidates:
+        return ranking
+    checked: dict[int, Candidate] = {}
+    for c in which:
         if c.longer_gain is None:
-            c.longer_gain = horizon.gain(c.fit.model)
+            c = checked.setdefault(id(c), replace(c, longer_gain=horizon.gain(c.fit.model)))
             if why := one_step_only(c, t=t):
                 beside = " + ".join(e.name for e in horizon.model.effects)
                 ranked = f"{c.name} ranked last" + (f" beside {beside}" if beside else "")
@@ -124,13 +127,14 @@ def longer_gains(horizon: LongestHorizon, candidates: list[Candidate], until_one
                        reading_only=traits(c.name).reading_only, reading_tolerance=t.reading_tolerance)
         if until_one_passes and not one_step_only(c, t=t):
             break
+    return [checked.get(id(c), c) for c in ranking]
 
 
-def screen(horizon: LongestHorizon, ranking: list[Candidate], t: Thresholds = THRESHOLDS) -> None:
-    """``longer_gains`` of the significant candidates of plausible magnitude, in rank order,
-    until one lowers the open-loop error at the longest horizon (at most ``screened``)."""
+def screen(horizon: LongestHorizon, ranking: list[Candidate], t: Thresholds = THRESHOLDS) -> list[Candidate]:
+    """``ranking`` with the ``longer_gains`` of its significant candidates of plausible magnitude,
+    in rank order, until one lowers the open-loop error at the longest horizon (at most ``screened``)."""
     plausible = [c for c in ranking if c.judgement.significant and not implausible(c.fit, t=t)]
-    longer_gains(horizon, plausible[:t.screened], until_one_passes=True, t=t)
+    return longer_gains(horizon, ranking, plausible[:t.screened], until_one_passes=True, t=t)
 
 
 def noise_fits_last(ranking: list[Candidate], t: Thresholds = THRESHOLDS) -> list[Candidate]:
@@ -172,9 +176,12 @@ def uneven(horizon: LongestHorizon, ranking: list[Candidate], t: Thresholds = TH
     if horizon.steps <= 1 or any(c.judgement.significant and not doubt(c, t=t) and not short_lived(c, t=t)
                                  for c in ranking):
         return ranking
-    pool = [c for c in ranking if not implausible(c.fit, t=t) and (
-        c.judgement.removed >= t.min_improvement or c.judgement.z >= t.significance_z)][:t.screened]
-    longer_gains(horizon, pool, t=t)
+    def checkable(c: Candidate) -> bool:
+        return not implausible(c.fit, t=t) and (c.judgement.removed >= t.min_improvement
+                                                 or c.judgement.z >= t.significance_z)
+
+    ranking = longer_gains(horizon, ranking, [c for c in ranking if checkable(c)][:t.screened], t=t)
+    pool = [c for c in ranking if checkable(c)][:t.screened]
     best = max(pool, key=lambda c: c.longer_gain, default=None)
     if best is None or best.longer_gain < t.large_improvement:
         return ranking
@@ -224,8 +231,11 @@ def prefer_simpler(ranking: list[Candidate], horizon: LongestHorizon | None = No
         close = c.judgement.removed >= t.parsimony_share * best.judgement.removed
         z = paired_z(c.judgement.row_errors - best.judgement.row_errors)
         gives_way, margin = not better_at_one_step(best, c, t=t), None
-        if not gives_way:  # the richer one predicts one step significantly better: and further?
-            margin = longer_margin(horizon, best, c, t=t)
+        if not gives_way and horizon is not None and horizon.steps > 1:  # it predicts one step better: further?
+            ranking = longer_gains(horizon, ranking, [x for x in ranking if x.fit is best.fit or x.fit is c.fit], t=t)
+            best, c = (next(x for x in ranking if x.fit is y.fit) for y in (best, c))
+            margin = best.longer_gain - c.longer_gain
+        if not gives_way:
             gives_way = (margin is not None and margin <= 0.0) or (
                 close and (margin is None or margin < t.longer_margin))
         if gives_way:
@@ -247,16 +257,6 @@ def prefer_simpler(ranking: list[Candidate], horizon: LongestHorizon | None = No
                    least_longer_margin=t.longer_margin)
             return out
     return ranking
-
-
-def longer_margin(horizon: LongestHorizon | None, richer: Candidate, simpler: Candidate,
-                  t: Thresholds = THRESHOLDS) -> float | None:
-    """How much more of the open-loop error at the longest horizon ``richer`` removes than
-    ``simpler`` (share of that error; None with one-step horizons only)."""
-    if horizon is None or horizon.steps <= 1:
-        return None
-    longer_gains(horizon, [richer, simpler], t=t)
-    return richer.longer_gain - simpler.longer_gain
 
 
 def tied_with_best(ranking: list[Candidate], t: Thresholds = THRESHOLDS) -> list[Candidate]:
