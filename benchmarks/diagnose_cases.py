@@ -289,6 +289,11 @@ TRIPLES = {
     "strength+friction+latency": ({"strength": 0.85, "latency_steps": 12, "spec_edit": _joints("frictionloss", 0.2)},
                                   [("motor_strength", "scale", 0.85), ("joint_friction", "value", 0.2),
                                    ("actuator_latency", "seconds", 0.012)]),
+    # three effects of every joint at once, each of which PD gains or encoder offsets could partly stand in for
+    "damping+friction+armature": ({"spec_edit": _both(_joints("damping", 0.6), _joints("frictionloss", 0.2),
+                                                      _joints("armature", 0.015))},
+                                  [("joint_damping", "value", 0.6), ("joint_friction", "value", 0.2),
+                                   ("armature", "value", 0.015)]),
 }
 
 
@@ -493,6 +498,7 @@ def diagnose_pair(args, name: str, stem: str, over: dict, truth: list, seed: int
     aside = f" set_aside={sorted(d.set_aside)}" if d.set_aside else ""
     print(f"{name:18s} verdict={d.verdict:11s} imu={d.accelerometer.kind:7s} both={said:4s} "
           f"{' '.join(cells)}{also}{aside} {time.perf_counter() - t:.0f}s", flush=True)
+    print_stages_and_rules(d)
 
 
 def pairs(args, root: Path, cases: dict = PAIRS, seed: int = 300) -> None:
@@ -636,13 +642,18 @@ def main() -> None:
         added = [f"{a.name}({', '.join(f'{k}={float(np.mean(v)):.4g}' for k, v in a.fit.values.items())})"
                  for a in d.added]
         print(line + f" added={added}{aside} {seconds:.0f}s", flush=True)
-        print(f"  stages: {', '.join(f'{k} {v:.0f}' for k, v in d.stages.items())}", flush=True)
-        print(f"  rules: {', '.join(sorted({x.rule for x in d.decisions}))}", flush=True)
+        print_stages_and_rules(d)
         if d.verdict != want:
             print(f"  {d.verdict}: {d.reason}", flush=True)
     for k, (good, n) in tally.items():
         print(f"{k}={good}/{n}")
     print_rules(rules)
+
+
+def print_stages_and_rules(d) -> None:
+    """Under a case's line: the time of each stage, s, and the rules that decided something."""
+    print(f"  stages: {', '.join(f'{k} {v:.0f}' for k, v in d.stages.items())}", flush=True)
+    print(f"  rules: {', '.join(sorted({x.rule for x in d.decisions}))}", flush=True)
 
 
 def count_rules(d, rules: Counter) -> None:
