@@ -22,6 +22,10 @@ With ``--threshold NAME=VALUE`` (repeatable), a ``policy.Thresholds`` field is s
 every case (``inf`` or 0 turns a rule's test off): the tally with a rule neutralised, against
 the tally without, says whether the rule earns its place.
 
+With ``--without RULE`` (repeatable), a rule of the selection is replaced by its neutral outcome
+(``NEUTRAL``: the ranking as it is, no reason to set a candidate aside, nothing to revisit) in
+every module that calls it: the ablation of a rule that no threshold turns off alone.
+
 With ``--other``, the ``OTHER`` cases instead: values and seeds the rules were not made on.
 With ``--no-mocap``, the logs lack the trunk's position and linear velocity (no motion capture:
 an IMU and encoders only), which the diagnosis estimates by leg odometry
@@ -120,7 +124,7 @@ from robot_log import LogSpec, welded_payload, write_log  # noqa: E402
 
 from acn.measurements.importer import ImportConfig, import_log  # noqa: E402
 from acn.measurements.data import load_measurements  # noqa: E402
-from acn.diagnosis import THRESHOLDS, DiagnoseConfig, Thresholds, diagnose  # noqa: E402
+from acn.diagnosis import THRESHOLDS, DiagnoseConfig, Thresholds, diagnose, policy  # noqa: E402
 from acn.diagnosis.pipeline import rule_out  # noqa: E402
 from acn.diagnosis.results import held  # noqa: E402
 from acn.sim.backends import IMU_ACC_KINDS  # noqa: E402
@@ -295,6 +299,31 @@ TRIPLES = {
                                   [("joint_damping", "value", 0.6), ("joint_friction", "value", 0.2),
                                    ("armature", "value", 0.015)]),
 }
+
+
+# A rule of the selection replaced by its neutral outcome (--without RULE): what the search does without it.
+NEUTRAL = {
+    "one_step_only": lambda c, t=THRESHOLDS: "",                                   # no candidate fits the noise
+    "uneven": lambda horizon, ranking, t=THRESHOLDS: ranking,                      # the ranking as it is
+    "prefer_simpler": lambda ranking, horizon=None, t=THRESHOLDS: ranking,
+    "prefer_longer": lambda ranking, t=THRESHOLDS: ranking,
+    "finer_look": lambda problem, model, cfg, judge_rows, base_residual, ranking, *a, **k: ranking,
+    "final_doubt": lambda step, t=THRESHOLDS: "",                                  # every final fit holds
+    "too_little": lambda j, longer, floor_mse, t=THRESHOLDS: "",
+    "unneeded": lambda step, start, start_mse, floor_mse, t=THRESHOLDS: "",
+    "nothing_left": lambda *a, **k: False,                                         # always something to look for
+    "revisit": lambda problem, first, cfg, judge_rows, base_residual, added, *a, **k: added,
+    "does_not_hold": lambda fits, t=THRESHOLDS: "",                                # the halves always agree
+}
+
+
+def without(rules: list[str]) -> None:
+    """Replace each rule by its ``NEUTRAL`` outcome in every module of ``acn.diagnosis`` that holds it."""
+    for rule in rules:
+        real = getattr(policy, rule)
+        for name, module in list(sys.modules.items()):
+            if name.startswith("acn.diagnosis") and getattr(module, rule, None) is real:
+                setattr(module, rule, NEUTRAL[rule])
 
 
 def _realistic(rng: np.random.Generator, effect: str) -> float:
@@ -542,6 +571,8 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--episodes", type=int, default=4)
     ap.add_argument("--threshold", type=_threshold, action="append", default=[], metavar="NAME=VALUE",
                     help="a policy.Thresholds field set otherwise for every case (repeatable): a rule neutralised")
+    ap.add_argument("--without", action="append", default=[], choices=sorted(NEUTRAL), metavar="RULE",
+                    help="a rule of the selection replaced by its neutral outcome (repeatable): the rule ablated")
     ap.add_argument("--cases", default=None, help="comma-separated names (default: every case of the set)")
     ap.add_argument("--other", action="store_true", help="the OTHER set: values and seeds the rules never saw")
     ap.add_argument("--pairs", action="store_true", help="logs with two hidden effects instead (PAIRS)")
@@ -593,6 +624,9 @@ def main() -> None:
     args.thresholds = replace(THRESHOLDS, **dict(args.threshold))
     if args.threshold:
         print("thresholds: " + ", ".join(f"{k}={v:g}" for k, v in args.threshold), flush=True)
+    if args.without:
+        without(args.without)
+        print("without: " + ", ".join(args.without), flush=True)
     root = args.keep or Path(tempfile.mkdtemp())
     root.mkdir(parents=True, exist_ok=True)
     cases, seed = (PAIRS, 300) if args.pairs else (TRIPLES, 900) if args.triples else (OTHER, 700) if args.other \

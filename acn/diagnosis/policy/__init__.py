@@ -2,7 +2,7 @@
 
 Every rule the diagnosis chooses by lives in this package, one module per job: ``judging`` (a
 candidate's significance, the plausibility of its values, fitting the noise), ``ranking``,
-``adding`` (``greedy``), ``chains`` (``--auto``: ``revisit``, ``other_starts``) and ``verdict``.
+``adding`` (``greedy``), ``chains`` (``--auto``: ``revisit``, ``other_starts``) and ``verdicts``.
 Every threshold of those rules is a field of ``Thresholds`` (``thresholds``; the defaults:
 ``THRESHOLDS``), handed to each rule as ``t``. The engine below it
 fits an effect (``fitting``), re-simulates and judges a model on held-out rows (``heldout``,
@@ -94,7 +94,7 @@ from acn.diagnosis.policy.adding import (add_effect, added_fits_noise, choose_fi
                                          left_over, nothing_left, out_of_time, refine_chain, too_little, unneeded)
 from acn.diagnosis.policy.chains import (auto, horizon_votes, improvement, other_starts, predicts_as_well,
                                          predicts_better, revisit)
-from acn.diagnosis.policy.verdict import NOT_ADDED, does_not_hold, holds_on_halves, verdict
+from acn.diagnosis.policy.verdicts import NOT_ADDED, does_not_hold, holds_on_halves, verdict
 
 __all__ = ["NOT_ADDED", "Plausibility", "THRESHOLDS", "Thresholds", "add_effect", "added_fits_noise", "at_bound",
            "auto", "better_at_one_step", "candidate", "choose_fit", "does_not_hold", "doubt", "evidence",
