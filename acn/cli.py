@@ -994,6 +994,8 @@ def _transfer_flags() -> dict[str, Flag]:
         "finest": Flag("acn-diagnose --finest: the finest granularity of an added per-joint effect (shared: a third "
                        "of the time of the full search; joint: the full search)", metavar="GRANULARITY"),
         "auto_alternatives": Flag("acn-diagnose --auto-alternatives: other chains of effects to try", nonneg_int),
+        "auto_seconds": Flag("acn-diagnose --auto-seconds: the search's bound, s (0: none, the same physics on any "
+                             "machine)", nonneg_float, metavar="S"),
         "fit_epochs": Flag("acn-fit --epochs for the correctors (0: acn-fit's default)", nonneg_int),
         "fit_rounds": Flag("acn-fit --rounds for the correctors (-1: acn-fit's default)",
                            number(int, -1, inclusive=True)),

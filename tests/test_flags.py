@@ -44,3 +44,13 @@ def test_a_required_field_without_a_default_is_a_required_option(capsys):
     with pytest.raises(SystemExit) as e:
         cli.import_parser().parse_args(["log.csv", "--out", "x", "--kp", "60", "--kd", "1.5", "--torque-limit", "33"])
     assert e.value.code == 2 and "--control-hz" in capsys.readouterr().err
+
+
+def test_the_diagnosis_search_bound_is_an_option_where_zero_lifts_it():
+    from acn.diagnosis import DiagnoseConfig
+
+    def parsed(*argv):
+        return _config(cli.diagnose_parser(), DiagnoseConfig(), cli._diagnose_flags(), ["d", *argv])
+
+    assert (parsed("--auto-seconds", "30").auto_seconds, parsed("--auto-seconds", "0").auto_seconds) == (30.0, None)
+    assert parsed("--auto-max", "2").auto_max == 2

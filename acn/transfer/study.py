@@ -82,6 +82,8 @@ class TransferConfig:
     effects: tuple[str, ...] = ()     # the diagnosis' candidates (acn-diagnose --effects; (): the catalogue)
     finest: str = "shared"            # acn-diagnose --finest: one value of a per-joint effect for every joint
     auto_alternatives: int = 0        # acn-diagnose --auto-alternatives: one chain of effects
+    auto_seconds: float = 0.0         # acn-diagnose --auto-seconds (0: no bound, so the study's physics is the same
+    # on any machine; a bound in seconds stops the search where a slower machine has done less)
     fit_epochs: int = 0               # acn-fit --epochs for F and F_M (0: acn-fit's default)
     fit_rounds: int = -1              # acn-fit --rounds (-1: acn-fit's default)
 
@@ -207,6 +209,7 @@ class Plan:
             ("2. physics", [[Step("diagnose", "acn-diagnose", [
                 str(o / "measurements" / "excite"), str(o / "measurements" / "trot"), "--side", "target",
                 "--model", c.sim, "--auto", "--finest", c.finest, "--auto-alternatives", str(c.auto_alternatives),
+                "--auto-seconds", f"{c.auto_seconds:g}",
                 *effects, "--json", str(o / "physics" / "diagnosis.json"),
                 "--report", str(o / "physics" / "report.html"), "--save-model", str(m)])]]),
             ("3. corrector F", [[Step("fit_F", "acn-fit", [str(o / "measurements" / "trot"), "--model", self.robot,
