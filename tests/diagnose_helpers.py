@@ -16,8 +16,9 @@ from acn.sim.collector import CollectConfig
 from acn.sim.effects import AppliedEffect, get_effect
 
 # Small and quick: a few hundred rows, a few hundred re-simulated per stage.
+# Small sizes; no time bound on the search, so a busy machine gives the same answer as an idle one
 FAST = DiagnoseConfig(horizons=(1, 5), compare_rows=300, rollout_starts=30, rank_rows=100, judge_rows=300,
-                      fit_rows=200, rank_iterations=2)
+                      fit_rows=200, rank_iterations=2, auto_seconds=None)
 
 
 def measured(tmp_path, hidden: dict, policy: str = "excite", source: str = "mujoco", seconds: float = 3.0,
