@@ -489,7 +489,7 @@ def diagnose_pair(args, name: str, stem: str, over: dict, truth: list, seed: int
     path, _ = import_log(root / f"{stem}.csv", root / stem, import_config(args))
     t = time.perf_counter()
     d = diagnose(load_measurements(path), Model.parse("mujoco"), DiagnoseConfig(), automatic=True,
-                 thresholds=args.thresholds)
+                 thresholds=args.thresholds, progress=timeline(args, t))
     count_rules(d, tally.setdefault("rules", Counter()))
     fitted = {t.name: t.values for t in d.final.model.effects}
     hidden = {t[0] for t in truth}
@@ -573,6 +573,7 @@ def parser() -> argparse.ArgumentParser:
                     help="a policy.Thresholds field set otherwise for every case (repeatable): a rule neutralised")
     ap.add_argument("--without", action="append", default=[], choices=sorted(NEUTRAL), metavar="RULE",
                     help="a rule of the selection replaced by its neutral outcome (repeatable): the rule ablated")
+    ap.add_argument("--progress", action="store_true", help="print each step of every diagnosis with its time")
     ap.add_argument("--cases", default=None, help="comma-separated names (default: every case of the set)")
     ap.add_argument("--other", action="store_true", help="the OTHER set: values and seeds the rules never saw")
     ap.add_argument("--pairs", action="store_true", help="logs with two hidden effects instead (PAIRS)")
@@ -647,7 +648,7 @@ def main() -> None:
         path, _ = import_log(root / f"{i}.csv", root / f"d{i}", import_config(args))
         t = time.perf_counter()
         d = diagnose(load_measurements(path), Model.parse("mujoco"), DiagnoseConfig(), automatic=True,
-                     thresholds=args.thresholds)
+                     thresholds=args.thresholds, progress=timeline(args, t))
         seconds = time.perf_counter() - t
         count_rules(d, rules)
         tally["verdict_right"][0] += d.verdict == want
@@ -682,6 +683,13 @@ def main() -> None:
     for k, (good, n) in tally.items():
         print(f"{k}={good}/{n}")
     print_rules(rules)
+
+
+def timeline(args, start: float):
+    """With ``--progress``: a diagnosis' progress callback printing each step with the seconds since ``start``."""
+    if not args.progress:
+        return None
+    return lambda message, fraction=None: print(f"    {time.perf_counter() - start:6.1f} s  {message}", flush=True)
 
 
 def print_stages_and_rules(d) -> None:

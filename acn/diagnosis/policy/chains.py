@@ -177,6 +177,10 @@ def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge
             record("other_starts", "nothing added", f"the chain started with {other.why}", start=c.name)
             continue
         better, worse = horizon_votes(improvement(steps, kept.steps), t=t)
+        if (better or not worse) and any(traits(s.name).moves_start for s in kept.steps + steps) and out_of_time(
+                cfg, clock, f"comparing the chain started with {c.name}, {other.label}, refined with the kept one"):
+            other.why = "not compared: the search's time bound"
+            break
         if better or not worse:  # it may replace the kept chain: compare the two as they would be reported
             kept.steps = refine_chain(problem, first, kept.steps, cfg, judge_rows, base_residual, t=t)
             other.steps = steps = refine_chain(problem, first, steps, cfg, judge_rows, base_residual, t=t)
