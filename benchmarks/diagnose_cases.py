@@ -26,6 +26,9 @@ With ``--without RULE`` (repeatable), a rule of the selection is replaced by its
 (``NEUTRAL``: the ranking as it is, no reason to set a candidate aside, nothing to revisit) in
 every module that calls it: the ablation of a rule that no threshold turns off alone.
 
+With ``--progress``, each step of every diagnosis is printed with the seconds since it began:
+where a log's time goes.
+
 With ``--other``, the ``OTHER`` cases instead: values and seeds the rules were not made on.
 With ``--no-mocap``, the logs lack the trunk's position and linear velocity (no motion capture:
 an IMU and encoders only), which the diagnosis estimates by leg odometry
