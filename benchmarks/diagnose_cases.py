@@ -491,7 +491,7 @@ def diagnose_pair(args, name: str, stem: str, over: dict, truth: list, seed: int
     write_log(root / f"{stem}.csv", log_spec(args, seed, over))
     path, _ = import_log(root / f"{stem}.csv", root / stem, import_config(args))
     t = time.perf_counter()
-    d = diagnose(load_measurements(path), Model.parse("mujoco"), DiagnoseConfig(), automatic=True,
+    d = diagnose(load_measurements(path), Model.parse("mujoco"), diagnose_config(args), automatic=True,
                  thresholds=args.thresholds, progress=timeline(args, t))
     count_rules(d, tally.setdefault("rules", Counter()))
     fitted = {t.name: t.values for t in d.final.model.effects}
@@ -576,6 +576,8 @@ def parser() -> argparse.ArgumentParser:
                     help="a policy.Thresholds field set otherwise for every case (repeatable): a rule neutralised")
     ap.add_argument("--without", action="append", default=[], choices=sorted(NEUTRAL), metavar="RULE",
                     help="a rule of the selection replaced by its neutral outcome (repeatable): the rule ablated")
+    ap.add_argument("--auto-seconds", type=float, default=DiagnoseConfig().auto_seconds, metavar="S",
+                    help="the search's time bound (acn-diagnose --auto-seconds; 0: none)")
     ap.add_argument("--progress", action="store_true", help="print each step of every diagnosis with its time")
     ap.add_argument("--cases", default=None, help="comma-separated names (default: every case of the set)")
     ap.add_argument("--other", action="store_true", help="the OTHER set: values and seeds the rules never saw")
@@ -650,7 +652,7 @@ def main() -> None:
         write_log(root / f"{i}.csv", log_spec(args, seed + i, over))
         path, _ = import_log(root / f"{i}.csv", root / f"d{i}", import_config(args))
         t = time.perf_counter()
-        d = diagnose(load_measurements(path), Model.parse("mujoco"), DiagnoseConfig(), automatic=True,
+        d = diagnose(load_measurements(path), Model.parse("mujoco"), diagnose_config(args), automatic=True,
                      thresholds=args.thresholds, progress=timeline(args, t))
         seconds = time.perf_counter() - t
         count_rules(d, rules)
@@ -686,6 +688,11 @@ def main() -> None:
     for k, (good, n) in tally.items():
         print(f"{k}={good}/{n}")
     print_rules(rules)
+
+
+def diagnose_config(args) -> DiagnoseConfig:
+    """The diagnosis' defaults, with the search's time bound of ``--auto-seconds`` (0: none)."""
+    return DiagnoseConfig(auto_seconds=args.auto_seconds or None)
 
 
 def timeline(args, start: float):
