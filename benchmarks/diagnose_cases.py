@@ -313,7 +313,6 @@ NEUTRAL = {
     "finer_look": lambda problem, model, cfg, judge_rows, base_residual, ranking, *a, **k: ranking,
     "final_doubt": lambda step, t=THRESHOLDS: "",                                  # every final fit holds
     "too_little": lambda j, longer, floor_mse, t=THRESHOLDS: "",
-    "unneeded": lambda step, start, start_mse, floor_mse, t=THRESHOLDS: "",
     "nothing_left": lambda *a, **k: False,                                         # always something to look for
     "revisit": lambda problem, first, cfg, judge_rows, base_residual, added, *a, **k: added,
     "does_not_hold": lambda fits, t=THRESHOLDS: "",                                # the halves always agree

@@ -878,41 +878,20 @@ def test_auto_holds_an_effect_s_final_fit_to_the_margins_it_asks_of_the_candidat
     assert too_little(judged(0.6), None, floor_mse=0.1) == ""
 
 
-def test_auto_adds_only_what_the_data_need():
-    """``unneeded``: an effect whose fitted values lie at nominal within their standard errors, or
-    that explains a sliver of the error --auto started from (one step and longest horizon), is
-    not added; one that explains a share of it is. ``nothing_left``: once what is left is
-    smaller than that share, no further effect is looked for."""
+def test_auto_stops_where_nothing_left_could_be_needed():
+    """``nothing_left``: once what is left, noise included, is under ``auto_min_share`` of the
+    structured error --auto started from (one step and longest horizon), no further effect is
+    looked for; above it, the search goes on."""
     from acn.diagnosis.compare import Comparison
-    from acn.diagnosis.fitting import EffectFit
-    from acn.diagnosis.heldout import Judgement
-    from acn.diagnosis.policy import nothing_left, unneeded
-    from acn.diagnosis.results import Added
+    from acn.diagnosis.policy import nothing_left
 
     def comparison(one: float, longest: float) -> Comparison:
         return Comparison(Model("mujoco"), {}, {1: np.full(4, one), 25: np.full(4, longest)}, np.arange(10),
                           np.zeros((10, 4)), np.zeros((10, 43)), 0)
 
-    payload = get_effect("payload")
-    nominal = {p.name: p.nominal for p in payload.parameters}
-
-    def step(mass: float, stderr: float, before: Comparison, after: Comparison, mse_before: float,
-             mse_after: float) -> Added:
-        values = {**nominal, "mass": mass, "com_z": 0.005}
-        fit = EffectFit(payload, "shared", values, list(values), np.array([mass, 0.0, 0.0, 0.005]),
-                        np.array([stderr, 0.01, 0.01, 0.01]), Model("mujoco"), 0.0, 0, nominal)
-        return Added(fit, Judgement(mse_before, mse_after, 1 - mse_after / mse_before, 8.0, True, np.zeros((1, 1))),
-                     before, after)
-
     start, left = comparison(1.0, 1.0), comparison(0.1, 0.1)
-    # 0 kg +- 0.3, its centre 5 mm up +- 1 cm: the data cannot tell it from no payload
-    assert "at nominal within 2 standard errors" in unneeded(step(0.0, 0.3, left, left, 0.011, 0.010), start, 1.0, 0.01)
-    # 2 kg +- 0.1, but it removes 0.1 % of the structured error and of the 25-step error: a fit to what is left
-    tiny = step(2.0, 0.1, left, comparison(0.099, 0.0999), 0.011, 0.010)
-    assert "explains only 0.1%" in unneeded(tiny, start, 1.0, 0.01)
-    # the same values explaining a third of it are added
-    assert unneeded(step(2.0, 0.1, start, comparison(0.8, 0.8), 1.0, 0.66), start, 1.0, 0.01) == ""
     assert nothing_left(left, 0.01 + 0.02, start, 1.0, 0.01) and not nothing_left(left, 0.2, start, 1.0, 0.01)
+    assert not nothing_left(comparison(0.1, 0.5), 0.03, start, 1.0, 0.01)  # the long prediction still wrong
 
 
 def test_one_jacobian_screens_the_finer_granularities_of_a_fit(tmp_path):

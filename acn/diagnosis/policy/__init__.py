@@ -91,7 +91,7 @@ from acn.diagnosis.policy.ranking import (better_at_one_step, candidate, finer_l
                                           promising, rank, screen, tied_either_way, tied_with, tied_with_best, ties_of,
                                           uneven)
 from acn.diagnosis.policy.adding import (add_effect, added_fits_noise, choose_fit, final_doubt, fit_over_steps, greedy,
-                                         left_over, nothing_left, out_of_time, refine_chain, too_little, unneeded)
+                                         left_over, nothing_left, out_of_time, refine_chain, too_little)
 from acn.diagnosis.policy.chains import (auto, horizon_votes, improvement, other_starts, predicts_as_well,
                                          predicts_better, revisit)
 from acn.diagnosis.policy.verdicts import NOT_ADDED, does_not_hold, holds_on_halves, verdict
@@ -105,4 +105,4 @@ __all__ = ["NOT_ADDED", "Plausibility", "THRESHOLDS", "Thresholds", "add_effect"
            "over_steps_from_realistic", "plausibility", "predicts_as_well", "predicts_better",
            "prefer_longer", "prefer_simpler", "promised", "promising", "rank", "refine_chain", "revisit", "screen",
            "short_lived", "significant", "significant_gain", "tied_either_way", "tied_with", "tied_with_best",
-           "ties_of", "too_large", "too_little", "too_small", "uneven", "unidentified", "unneeded", "verdict"]
+           "ties_of", "too_large", "too_little", "too_small", "uneven", "unidentified", "verdict"]

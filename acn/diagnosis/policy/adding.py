@@ -1,5 +1,5 @@
 """Adding an effect: its granularity (``choose_fit``), its final fit, whether it holds there
-(``final_doubt``, ``too_little``, ``unneeded``), and ``greedy``, which ranks and adds while the
+(``final_doubt``, ``too_little``), and ``greedy``, which ranks and adds while the
 best candidate removes more than the noise.
 """
 
@@ -10,7 +10,7 @@ import numpy as np
 from acn.diagnosis.clock import StageClock
 from acn.diagnosis.compare import Comparison, compare
 from acn.diagnosis.decisions import record, share
-from acn.diagnosis.fitting import (EffectFit, FreeParameters, final_fit, final_rows, finer_gains, fit_effect,
+from acn.diagnosis.fitting import (EffectFit, final_fit, final_rows, finer_gains, fit_effect,
                                    multistep_refit, rank_rows, refittable)
 from acn.diagnosis.granularity import GRANULARITIES, finer
 from acn.diagnosis.heldout import Judgement, removed_at
@@ -130,40 +130,15 @@ def too_little(j: Judgement, longer: float | None, floor_mse: float, t: Threshol
     return ""
 
 
-def unneeded(step: Added, start: Comparison, start_mse: float, floor_mse: float, t: Thresholds = THRESHOLDS) -> str:
-    """Why the data do not need ``step``'s effect ("" where they do): every value it fits lies at
-    nominal within ``nominal_z`` standard errors, or it explains under ``auto_min_share`` of the
-    structured error of the model --auto started from (``start``, whose held-out one-step error is
-    ``start_mse``) and removes under ``auto_min_share`` of that model's open-loop error at the
-    longest horizon.
-
-    ``too_little`` judges a step against what the effects before it left; once one effect has
-    explained a noise-free log to its last per cent, any flexible effect explains a share of
-    that rest (a payload of 0 kg, its centre of mass 5 mm off, beside a joint damping that
-    explained the rest). Against the error the diagnosis started from, such a step is nothing."""
-    f = step.fit
-    own = len(FreeParameters(f.effect, f.granularity, f.values).names)
-    nominal = FreeParameters(f.effect, f.granularity, f.nominal).vector(f.nominal)
-    off = np.abs(f.x[:own] - nominal) / np.maximum(f.stderr[:own], 1e-12)
-    if np.all(off <= t.nominal_z):
-        return f"its fitted values lie at nominal within {t.nominal_z:g} standard errors"
-    share = (step.judgement.mse_before - step.judgement.mse_after) / (start_mse - floor_mse) \
-        if start_mse > floor_mse else 0.0
-    longer = removed_at(start, step.after, start.check) - removed_at(start, step.before, start.check) \
-        if start.check > 1 else 0.0
-    if share < t.auto_min_share and longer < t.auto_min_share:
-        return (f"it explains only {max(share, 0):.1%} of the error above the noise floor the diagnosis started from "
-                f"and removes {max(longer, 0):.1%} of its {start.check}-step open-loop error")
-    return ""
-
-
 def nothing_left(current: Comparison, mse: float, start: Comparison, start_mse: float, floor_mse: float,
                  t: Thresholds = THRESHOLDS, then: str = "stopped") -> bool:
-    """Whether no effect added beside ``current`` (held-out one-step error ``mse``) can pass
-    ``unneeded`` any more: all of what is left, noise included, is under ``auto_min_share`` of
-    the structured error ``start`` had (one-step error ``start_mse``), and of its open-loop error
-    at the longest horizon. --auto stops there: no ranking, finer look or other start (``then``:
-    what the decision recorded says it does)."""
+    """Whether no effect added beside ``current`` (held-out one-step error ``mse``) could be
+    needed: all of what is left, noise included, is under ``auto_min_share`` of the structured
+    error ``start`` had (one-step error ``start_mse``), and of its open-loop error at the longest
+    horizon. --auto stops there: no ranking, finer look or other start (``then``: what the
+    decision recorded says it does). Once one effect has explained a noise-free log to its last
+    per cent, any flexible effect explains a share of that rest (a payload of 0 kg, its centre of
+    mass 5 mm off): against the error the diagnosis started from, such a step is nothing."""
     one, longer = left_over(current, mse, start, start_mse, floor_mse)
     if not (one < t.auto_min_share and longer < t.auto_min_share):
         return False
@@ -312,8 +287,6 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
         rule, why = "final_doubt", final_doubt(step, t=t)
         if not why and (little := too_little(step.judgement, longer_gain(step), floor_mse, t=t)):
             rule, why = "too_little", f"its final fit {little}"
-        if not why:
-            rule, why = "unneeded", unneeded(step, first, start_mse, floor_mse, t=t)
         noise = fits_noise(longer_gain(step), step.fit.effect, t=t)
         figures = dict(effect=best.name, granularity=step.fit.granularity, explained=step.judgement.explained(floor_mse),
                        removed=step.judgement.removed, z=step.judgement.z, longest_horizon_removed=longer_gain(step))

@@ -71,8 +71,6 @@ class Thresholds:
     # fitting noise removes, so that an effect fitted to the last per cent a first effect leaves is not added
     halves_z: float = 3.09            # normal quantile of the chi^2 test that an added effect's fits on two halves of
     # the episodes agree (0.999): effects that paper over structure the catalogue lacks named as the answer
-    nominal_z: float = 2.0            # standard errors within which every fitted value lies at nominal: the data
-    # cannot tell the effect from its absence
     # the verdict
     exact: float = 1e-3               # headline error under which a model reproduces the data: naming float32
     # storage's rounding (~1e-6)
