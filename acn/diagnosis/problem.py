@@ -65,7 +65,7 @@ class DiagnoseConfig:
     fit_rows: int = 1_500          # fit rows for an added effect's final fit
     candidates: tuple[str, ...] = EFFECT_NAMES
     auto_max: int = 4              # at most this many effects added by --auto
-    auto_seconds: float | None = 120.0  # --auto starts no new step of its search after this many s of the
+    auto_seconds: float | None = 300.0  # --auto starts no new step of its search after this many s of the
     # diagnosis, and says what it left untried (``policy.adding.out_of_time``); None: no bound
     auto_alternatives: int = 1     # --auto also starts from the next this many candidates (``policy.other_starts``)
     finest: str = "joint"          # the finest granularity an added per-joint effect may get (``policy.choose_fit``)
