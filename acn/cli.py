@@ -804,14 +804,8 @@ def import_main(argv: list[str] | None = None) -> int:
 
 
 # ----------------------------------------------------------------------------- acn-diagnose
-def _step_seconds(text: str) -> float | None:
-    """``--step-seconds``: seconds >= 0, where 0 means one control step (None)."""
-    value = nonneg_float(text)
-    return value if value > 0 else None
-
-
-def _no_bound_at_zero(text: str) -> float | None:
-    """``--auto-seconds``: seconds >= 0, where 0 means no bound (None)."""
+def _seconds_or_none(text: str) -> float | None:
+    """Seconds >= 0, where 0 means None (``--step-seconds``: one control step; ``--auto-seconds``: no bound)."""
     value = nonneg_float(text)
     return value if value > 0 else None
 
@@ -826,7 +820,7 @@ def _diagnose_flags() -> dict[str, Flag]:
         "auto_max": Flag("with --auto: add at most N effects", positive_int, metavar="N"),
         "auto_seconds": Flag("with --auto: start no new step of the search after S s of the diagnosis (the step "
                              "running ends, then the halves check), and say what was left untried; 0: no bound",
-                             _no_bound_at_zero, metavar="S"),
+                             _seconds_or_none, metavar="S"),
         "finest": Flag("the finest granularity an added per-joint effect may get: one value for every joint, one per "
                        "joint type, leg or joint (a finer one is kept where it predicts significantly better; coarser "
                        "is quicker)", choices=GRANULARITIES),
@@ -834,7 +828,7 @@ def _diagnose_flags() -> dict[str, Flag]:
                          lambda text: tuple(sorted(set(comma_list(positive_int)(text)))), metavar="1,5,25"),
         "step_seconds": Flag("one diagnosis step, s of control steps (rounded, at least one; 0: one control step): at "
                              "high control rates one control step moves the robot less than its sensor noise",
-                             _step_seconds),
+                             _seconds_or_none),
         "candidates": Flag("comma-separated candidates (default: the whole catalogue)", comma_list(str),
                            option="--effects", metavar="EFFECT,..."),
         "seed": Flag("the held-out split and random starts", nonneg_int),

@@ -333,13 +333,13 @@ def greedy(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows:
     return added, set_aside
 
 
-def out_of_time(cfg: DiagnoseConfig, clock: StageClock, untried: str) -> bool:
-    """Whether the search has run its ``cfg.auto_seconds`` (``--auto-seconds``); if so, records
-    ``untried``, the step it does not start. A model wrong in many small ways (another model of
+def out_of_time(cfg: DiagnoseConfig, clock: StageClock | None, untried: str) -> bool:
+    """Whether the search has run its ``cfg.auto_seconds`` (``--auto-seconds``) by ``clock`` (None:
+    no clock, no bound); if so, records ``untried``, the step it does not start. A model wrong in many small ways (another model of
     the robot) or by structure outside the catalogue keeps every candidate promising, and the
     search would otherwise run for tens of minutes; the step already running ends, and the
     verdict is given on what was found."""
-    if cfg.auto_seconds is None or clock.elapsed() < cfg.auto_seconds:
+    if cfg.auto_seconds is None or clock is None or clock.elapsed() < cfg.auto_seconds:
         return False
     record("out_of_time", "left untried", (
         f"{untried} left untried: the search has run {clock.elapsed():.0f} s (--auto-seconds {cfg.auto_seconds:g})"),

@@ -177,11 +177,11 @@ def other_starts(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge
             record("other_starts", "nothing added", f"the chain started with {other.why}", start=c.name)
             continue
         better, worse = horizon_votes(improvement(steps, kept.steps), t=t)
-        if (better or not worse) and any(traits(s.name).moves_start for s in kept.steps + steps) and out_of_time(
-                cfg, clock, f"comparing the chain started with {c.name}, {other.label}, refined with the kept one"):
-            other.why = "not compared: the search's time bound"
-            break
         if better or not worse:  # it may replace the kept chain: compare the two as they would be reported
+            if any(traits(s.name).moves_start for s in kept.steps + steps) and out_of_time(
+                    cfg, clock, f"comparing the chain started with {c.name}, {other.label}, refined with the kept one"):
+                other.why = "not compared: the search's time bound"
+                break
             kept.steps = refine_chain(problem, first, kept.steps, cfg, judge_rows, base_residual, t=t)
             other.steps = steps = refine_chain(problem, first, steps, cfg, judge_rows, base_residual, t=t)
         # The same effects added in another order are fitted from other starting points: the
@@ -242,8 +242,7 @@ def revisit(problem: Problem, first: Comparison, cfg: DiagnoseConfig, judge_rows
     effect would be left out (each standing in for another), the chain stays as it is.
     """
     effects = names(added)
-    if len(effects) < 2 or out_of_time(cfg, clock or StageClock(), f"judging {' + '.join(effects)} again beside "
-                                                                      "each other (revisit)"):
+    if len(effects) < 2 or out_of_time(cfg, clock, f"judging {' + '.join(effects)} again beside each other (revisit)"):
         return added
     chosen: list[str | None] = list(effects)
     final = added[-1].after.model
