@@ -176,12 +176,10 @@ def uneven(horizon: LongestHorizon, ranking: list[Candidate], t: Thresholds = TH
     if horizon.steps <= 1 or any(c.judgement.significant and not doubt(c, t=t) and not short_lived(c, t=t)
                                  for c in ranking):
         return ranking
-    def checkable(c: Candidate) -> bool:
-        return not implausible(c.fit, t=t) and (c.judgement.removed >= t.min_improvement
-                                                 or c.judgement.z >= t.significance_z)
-
-    ranking = longer_gains(horizon, ranking, [c for c in ranking if checkable(c)][:t.screened], t=t)
-    pool = [c for c in ranking if checkable(c)][:t.screened]
+    checked = [i for i, c in enumerate(ranking) if not implausible(c.fit, t=t) and (
+        c.judgement.removed >= t.min_improvement or c.judgement.z >= t.significance_z)][:t.screened]
+    ranking = longer_gains(horizon, ranking, [ranking[i] for i in checked], t=t)  # each in its place
+    pool = [ranking[i] for i in checked]
     best = max(pool, key=lambda c: c.longer_gain, default=None)
     if best is None or best.longer_gain < t.large_improvement:
         return ranking
